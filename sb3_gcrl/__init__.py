@@ -1,0 +1,12 @@
+"""sb3-gcrl: goal-conditioned RL methods of Zhao Yang's thesis (2025) for Stable-Baselines3.
+
+Importing the package registers every environment (ours under the ``GCRL/`` namespace, plus the
+gymnasium-robotics and MinAtar ones), so ``rl_zoo3 train --gym-packages sb3_gcrl`` sees them.
+"""
+
+from sb3_gcrl.envs import register_envs
+from sb3_gcrl.version import __version__
+
+register_envs()
+
+__all__ = ["__version__", "register_envs"]

@@ -1,0 +1,4 @@
+from sb3_gcrl.cli import main
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,27 @@
+"""Table of this package's algorithms, as the RL-Zoo launcher (``sb3-gcrl train|enjoy``) sees them.
+
+Entries are ``"module:Class"`` strings so that the table can be read without importing every
+algorithm. An algorithm is off-policy for ``rl_zoo3.enjoy`` when it derives from
+``OffPolicyAlgorithm`` (decided after import).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+#: name used with ``--algo`` -> ``"module:Class"``
+ALGORITHMS: dict[str, str] = {}
+
+
+def load_algorithm(name: str) -> type[BaseAlgorithm]:
+    """Import and return the class registered under ``name``.
+
+    :param name: key of :data:`ALGORITHMS` (e.g. ``"cec"``).
+    :return: the algorithm class.
+    """
+    if name not in ALGORITHMS:
+        raise KeyError(f"Unknown sb3-gcrl algorithm {name!r}; choose one of {sorted(ALGORITHMS)}")
+    module_name, class_name = ALGORITHMS[name].split(":")
+    return getattr(importlib.import_module(module_name), class_name)
