@@ -1,4 +1,6 @@
+import sys
+
 from sb3_gcrl.cli import main
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

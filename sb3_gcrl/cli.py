@@ -1,0 +1,177 @@
+"""Command line: ``sb3-gcrl train|enjoy|compare|list-envs|list-algos`` (also ``python -m sb3_gcrl``).
+
+``train`` and ``enjoy`` are RL-Zoo's own ``rl_zoo3.train.train`` / ``rl_zoo3.enjoy.enjoy``: every
+``rl_zoo3 train`` flag works. Before handing over, this launcher adds the package's algorithms to the
+zoo's algorithm table (``rl_zoo3.utils.ALGOS``, the dict that both scripts read), because a package
+imported through ``--gym-packages`` comes too late: the zoo fixes ``--algo`` choices when it builds its
+parser. When ``--algo`` names one of our algorithms and no ``-conf`` is given, the hyperparameters are
+read from this repository's ``zoo_configs/<algo>.yml`` instead of the zoo's own (which has none for them).
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+#: ``zoo_configs/`` of a source checkout (the package is meant to be installed from a clone).
+ZOO_CONFIGS_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
+
+#: sub-command -> ``"module:function"`` taking ``argv`` (list of strings) and returning an exit code
+COMMANDS: dict[str, str] = {
+    "train": "sb3_gcrl.cli:train",
+    "enjoy": "sb3_gcrl.cli:enjoy",
+    "compare": "sb3_gcrl.compare.cli:main",
+    "list-envs": "sb3_gcrl.cli:list_envs",
+    "list-algos": "sb3_gcrl.cli:list_algos",
+}
+
+USAGE = """usage: sb3-gcrl <command> [options]
+
+commands:
+  train       train with RL-Zoo (every `rl_zoo3 train` flag), our algorithms included
+  enjoy       run a trained agent with RL-Zoo's `enjoy` (every `rl_zoo3 enjoy` flag)
+  compare     compare methods x envs x seeds and write curves, plots, a table and a report
+  list-envs   print the registered GCRL/ environments with their spaces
+  list-algos  print the algorithms `--algo` accepts
+
+`sb3-gcrl <command> --help` shows the options of a command.
+"""
+
+
+def register_zoo_algorithms() -> None:
+    """Insert every algorithm of :data:`sb3_gcrl.algorithms.ALGORITHMS` into ``rl_zoo3.utils.ALGOS``."""
+    from rl_zoo3.utils import ALGOS
+
+    from sb3_gcrl.algorithms import ALGORITHMS, load_algorithm
+
+    for name in ALGORITHMS:
+        ALGOS.setdefault(name, load_algorithm(name))
+
+
+def _option_value(argv: Sequence[str], *flags: str) -> str | None:
+    """Value of the first of ``flags`` in ``argv`` (``--flag value`` or ``--flag=value``), else None."""
+    for i, arg in enumerate(argv):
+        for flag in flags:
+            if arg == flag and i + 1 < len(argv):
+                return argv[i + 1]
+            if arg.startswith(flag + "="):
+                return arg.split("=", 1)[1]
+    return None
+
+
+def _with_default_config(argv: list[str]) -> list[str]:
+    """Point ``-conf`` at ``zoo_configs/<algo>.yml`` for our algorithms when the user gave none."""
+    from sb3_gcrl.algorithms import ALGORITHMS
+
+    algo = _option_value(argv, "--algo")
+    if algo not in ALGORITHMS or _option_value(argv, "-conf", "--conf-file") is not None:
+        return argv
+    config = ZOO_CONFIGS_DIR / f"{algo}.yml"
+    if not config.is_file():
+        raise SystemExit(
+            f"sb3-gcrl: no hyperparameters for --algo {algo}: pass `-conf <file.yml>` "
+            f"(expected a default at {config})"
+        )
+    return [*argv, "-conf", str(config)]
+
+
+def _run_zoo_script(script: Callable[[], None], prog: str, argv: list[str]) -> int:
+    import sb3_gcrl  # noqa: F401  (registers the environments)
+
+    register_zoo_algorithms()
+    saved_argv = sys.argv
+    sys.argv = [prog, *argv]
+    try:
+        script()
+    finally:
+        sys.argv = saved_argv
+    return 0
+
+
+def train(argv: list[str]) -> int:
+    """``sb3-gcrl train``: RL-Zoo's ``train`` with this package's algorithms and configs available.
+
+    :param argv: ``rl_zoo3 train`` arguments.
+    :return: exit code.
+    """
+    from rl_zoo3.train import train as zoo_train
+
+    return _run_zoo_script(zoo_train, "sb3-gcrl train", _with_default_config(argv))
+
+
+def enjoy(argv: list[str]) -> int:
+    """``sb3-gcrl enjoy``: RL-Zoo's ``enjoy`` with this package's algorithms available.
+
+    :param argv: ``rl_zoo3 enjoy`` arguments.
+    :return: exit code.
+    """
+    from rl_zoo3.enjoy import enjoy as zoo_enjoy
+
+    return _run_zoo_script(zoo_enjoy, "sb3-gcrl enjoy", argv)
+
+
+def list_envs(argv: list[str]) -> int:
+    """``sb3-gcrl list-envs``: print every ``GCRL/`` environment id with its spaces.
+
+    :param argv: unused (no options).
+    :return: exit code.
+    """
+    import gymnasium as gym
+
+    import sb3_gcrl  # noqa: F401
+
+    if argv:
+        raise SystemExit(f"sb3-gcrl list-envs takes no arguments, got {argv}")
+    for env_id in sorted(k for k in gym.registry if k.startswith("GCRL/")):
+        env = gym.make(env_id)
+        try:
+            print(f"{env_id}\n  observation: {env.observation_space}\n  action:      {env.action_space}")
+        finally:
+            env.close()
+    return 0
+
+
+def list_algos(argv: list[str]) -> int:
+    """``sb3-gcrl list-algos``: print the algorithms that ``--algo`` accepts (ours, then the zoo's).
+
+    :param argv: unused (no options).
+    :return: exit code.
+    """
+    from rl_zoo3.utils import ALGOS
+
+    from sb3_gcrl.algorithms import ALGORITHMS
+
+    if argv:
+        raise SystemExit(f"sb3-gcrl list-algos takes no arguments, got {argv}")
+    for name, target in sorted(ALGORITHMS.items()):
+        print(f"{name:20s} {target}")
+    for name, cls in sorted(ALGOS.items()):
+        if name not in ALGORITHMS:
+            print(f"{name:20s} {cls.__module__}:{cls.__name__}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``sb3-gcrl`` console script.
+
+    :param argv: command line without the program name (defaults to ``sys.argv[1:]``).
+    :return: exit code.
+    """
+    args = list(sys.argv[1:] if argv is None else argv)
+    if not args or args[0] in ("-h", "--help"):
+        print(USAGE)
+        return 0 if args else 2
+    command, rest = args[0], args[1:]
+    if command not in COMMANDS:
+        print(f"sb3-gcrl: unknown command {command!r}; choose one of {', '.join(COMMANDS)}\n", file=sys.stderr)
+        print(USAGE, file=sys.stderr)
+        return 2
+    module_name, function_name = COMMANDS[command].split(":")
+    function: Callable[[list[str]], int] = getattr(importlib.import_module(module_name), function_name)
+    return int(function(rest) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
