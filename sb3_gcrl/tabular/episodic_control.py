@@ -1,0 +1,79 @@
+"""Tabular episodic control (thesis Eq. 5.2, the "EC" agent of Fig. 5.5)."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.policies import BasePolicy
+
+from sb3_gcrl.tabular.policies import TabularECPolicy
+from sb3_gcrl.tabular.tabular_algorithm import TabularAlgorithm
+from sb3_gcrl.two_memory.episodes import EpisodeRecorder, discounted_returns
+
+
+class TabularEpisodicControl(TabularAlgorithm):
+    """Tabular episodic control: after each episode, ``Q_ec[s, a] = max(Q_ec[s, a], G_t)`` for every step (Eq. 5.2);
+    act epsilon-greedily on ``Q_ec``. No replay buffer and no gradient steps: the only learning is the update at
+    the end of each episode (per env with ``n_envs > 1``).
+
+    :param policy: policy class or alias.
+    :param env: env with Discrete observation and action spaces.
+    :param ec_gamma: discount of the stored returns (None: ``gamma``).
+    :param kwargs: the other :class:`~sb3_gcrl.tabular.tabular_algorithm.TabularAlgorithm` arguments
+        (``learning_rate``, ``buffer_size``, ``batch_size``, ``train_freq`` have no effect here).
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"TabularECPolicy": TabularECPolicy}
+    policy: TabularECPolicy
+
+    def __init__(
+        self,
+        policy: str | type[BasePolicy] = "TabularECPolicy",
+        env: Any = None,
+        ec_gamma: float | None = None,
+        **kwargs: Any,
+    ) -> None:
+        kwargs.setdefault("buffer_size", 1)
+        self.ec_gamma = ec_gamma
+        super().__init__(policy, env, **kwargs)
+        if self.ec_gamma is not None and not 0.0 <= self.ec_gamma <= 1.0:
+            raise ValueError(f"ec_gamma must be in [0, 1], got {self.ec_gamma}")
+        self._recorder: EpisodeRecorder | None = None
+
+    @property
+    def ec_table(self) -> np.ndarray:
+        return self.policy.ec_table
+
+    def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
+        previous_obs = self._last_obs
+        result = super()._setup_learn(*args, **kwargs)
+        if self._last_obs is not previous_obs or self._recorder is None:
+            self._recorder = EpisodeRecorder(self.n_envs, (), np.int64, (), np.int64)
+        return result
+
+    def _store_transition(
+        self,
+        replay_buffer: ReplayBuffer,
+        buffer_action: np.ndarray,
+        new_obs: Any,
+        reward: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        # No replay: record the step, update the table at episode ends.
+        assert self._recorder is not None
+        self._recorder.add(np.asarray(self._last_obs).reshape(-1), np.asarray(buffer_action).reshape(-1), reward)
+        gamma = self.gamma if self.ec_gamma is None else self.ec_gamma
+        for env_index in np.flatnonzero(dones):
+            states, actions, rewards = self._recorder.pop(env_index)
+            self.policy.update_episode(states, actions, discounted_returns(rewards, gamma))
+        self._last_obs = new_obs
+
+    def train(self, gradient_steps: int, batch_size: int = 32) -> None:
+        """Nothing to do between episodes (the table is updated in ``_store_transition``)."""
+        self.logger.record("train/ec_visited_fraction", float(np.isfinite(self.ec_table).mean()))
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_recorder"]

@@ -1,0 +1,310 @@
+"""Per-episode dispatch between an episodic memory (2M-EC) and a parametric one (2M-RL), thesis Algorithm 2.
+
+:class:`TwoMemoryDispatchMixin` is mixed into an SB3 policy that holds both memories (tabular, DQN or SAC
+flavour). It owns everything the 2M agent decides:
+
+- which memory runs each env's next episode, drawn once per episode with probability p_ec (Eq. 5.5 or another
+  :mod:`~sb3_gcrl.two_memory.schedules` schedule) and never changed until that env's episode ends;
+- the running episodes and, when one ends, the episodic-memory update (Eq. 5.2) -- with every episode when data
+  is shared, only with the EC's own episodes when it is not (ablation 2Mw/oDS);
+- the score windows (last 50 returns per memory) and the evaluation memory of Eq. 5.6, used by
+  ``predict(deterministic=True)``.
+
+Keeping this state in the policy means ``save``/``load`` bring back the tables, the network and the score windows
+together (``get_extra_state`` puts them into the policy's ``state_dict``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+
+from sb3_gcrl.two_memory.buffers import SourceTaggedReplayBuffer
+from sb3_gcrl.two_memory.episodes import EpisodeRecorder, discounted_returns
+from sb3_gcrl.two_memory.schedules import (
+    EPISODIC,
+    PARAMETRIC,
+    UNASSIGNED,
+    PecSchedule,
+    ScoreWindows,
+    make_pec_schedule,
+)
+
+
+class TwoMemoryDispatchMixin:
+    """Dispatch logic of a 2M policy; mix in before the SB3 policy (``class P(TwoMemoryDispatchMixin, DQNPolicy)``).
+
+    Concrete policies implement :meth:`_episodic_actions`, :meth:`_parametric_actions`,
+    :meth:`update_episodic_memory` and, if their episodic memory is not a sub-module with its own state,
+    :meth:`_episodic_state` / :meth:`_load_episodic_state`.
+    """
+
+    def _init_dispatch(
+        self,
+        p_ec_schedule: PecSchedule | float | str | dict[str, Any],
+        data_sharing: bool,
+        score_window: int,
+        ec_gamma: float,
+    ) -> None:
+        """:param p_ec_schedule: schedule of p_ec (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`).
+        :param data_sharing: update the episodic memory with every episode (thesis default) instead of only its own.
+            The algorithm applies the same switch to the replay buffer.
+        :param score_window: n of Eq. 5.6 (50 in the thesis).
+        :param ec_gamma: discount of the returns stored in the episodic memory.
+        """
+        if not 0.0 <= ec_gamma <= 1.0:
+            raise ValueError(f"ec_gamma must be in [0, 1], got {ec_gamma}")
+        self.p_ec_schedule = make_pec_schedule(p_ec_schedule)
+        self.data_sharing = bool(data_sharing)
+        self.ec_gamma = float(ec_gamma)
+        self.score_windows = ScoreWindows(score_window)
+        #: memory running each env's current episode (EPISODIC, PARAMETRIC or UNASSIGNED)
+        self.acting_memory = np.zeros(0, dtype=np.int8)
+        self.recorder: EpisodeRecorder | None = None
+        #: env steps so far, kept up to date by the algorithm (or :class:`TwoMemoryCallback`)
+        self.num_timesteps = 0
+        #: p_ec used at the last draw
+        self.last_p_ec = float(self.p_ec_schedule(0, self.score_windows))
+        #: episodes run by each memory since construction (saved)
+        self.episode_counts = np.zeros(2, dtype=np.int64)
+
+    # ----------------------------------------------------------------------------------------------- episodes
+    def reset_episodes(self, n_envs: int) -> None:
+        """Forget running episodes (the envs were reset); the next step draws a memory for each env."""
+        self.acting_memory = np.full(n_envs, UNASSIGNED, dtype=np.int8)
+        self.recorder = None
+
+    def current_p_ec(self) -> float:
+        """p_ec of the schedule now (at :attr:`num_timesteps`, with the current scores)."""
+        p_ec = float(self.p_ec_schedule(self.num_timesteps, self.score_windows))
+        if not 0.0 <= p_ec <= 1.0:
+            raise ValueError(f"p_ec schedule {self.p_ec_schedule!r} returned {p_ec}, outside [0, 1]")
+        return p_ec
+
+    def assign_memories(self) -> np.ndarray:
+        """Draw a memory for every env that starts an episode (Algorithm 2: ``U(0,1) < p_ec`` -> EC).
+
+        :return: the acting memory of each env.
+        """
+        unassigned = np.flatnonzero(self.acting_memory == UNASSIGNED)
+        if unassigned.size > 0:
+            self.last_p_ec = self.current_p_ec()
+            draws = np.random.random(unassigned.size) < self.last_p_ec
+            self.acting_memory[unassigned] = np.where(draws, EPISODIC, PARAMETRIC)
+        return self.acting_memory
+
+    def record_step(
+        self, observations: np.ndarray, actions: np.ndarray, rewards: np.ndarray, dones: np.ndarray
+    ) -> list[tuple[int, int, float]]:
+        """Record one step of every env; finish the episodes that ended.
+
+        :param observations: observations the actions were taken in, shape (n_envs, *obs_shape).
+        :param actions: executed actions (env space), shape (n_envs, *action_shape).
+        :param rewards: rewards, shape (n_envs,).
+        :param dones: episode ends (termination or truncation), shape (n_envs,).
+        :return: ``(env_index, memory, undiscounted return)`` for each finished episode.
+        """
+        n_envs = len(rewards)
+        if self.acting_memory.size != n_envs:
+            raise RuntimeError(f"record_step got {n_envs} envs but dispatch was set up for {self.acting_memory.size}")
+        if np.any(self.acting_memory == UNASSIGNED):
+            raise RuntimeError("record_step called for an env that has no acting memory; call assign_memories first")
+        observations = np.asarray(observations)
+        actions = np.asarray(actions)
+        if self.recorder is None:
+            self.recorder = EpisodeRecorder(
+                n_envs, observations.shape[1:], observations.dtype, actions.shape[1:], actions.dtype
+            )
+        self.recorder.add(observations, actions, rewards)
+        finished = []
+        for env_index in np.flatnonzero(dones):
+            episode_obs, episode_actions, episode_rewards = self.recorder.pop(env_index)
+            memory = int(self.acting_memory[env_index])
+            episode_return = float(episode_rewards.sum())
+            self.score_windows.push(memory, episode_return)
+            self.episode_counts[memory] += 1
+            if self.data_sharing or memory == EPISODIC:
+                self.update_episodic_memory(
+                    episode_obs, episode_actions, discounted_returns(episode_rewards, self.ec_gamma)
+                )
+            self.acting_memory[env_index] = UNASSIGNED
+            finished.append((int(env_index), memory, episode_return))
+        return finished
+
+    def evaluation_memory(self) -> int:
+        """Eq. 5.6: the memory with the higher mean return over its last ``score_window`` training episodes."""
+        return self.score_windows.evaluation_memory()
+
+    # ----------------------------------------------------------------------------------------------- acting
+    def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
+        """Greedy action of each row's memory: the evaluation memory (Eq. 5.6) if ``deterministic``, else the
+        memory running that env's episode. A batch whose size is not the number of training envs (e.g. a single
+        observation given to ``predict``) uses the evaluation memory.
+        """
+        n = observation.shape[0]
+        if deterministic or self.acting_memory.size != n:
+            memories = np.full(n, self.evaluation_memory(), dtype=np.int8)
+        else:
+            memories = self.assign_memories()
+        actions: th.Tensor | None = None
+        for memory, act in ((EPISODIC, self._episodic_actions), (PARAMETRIC, self._parametric_actions)):
+            rows = np.flatnonzero(memories == memory)
+            if rows.size == 0:
+                continue
+            index = th.as_tensor(rows, device=observation.device)
+            memory_actions = act(observation[index], deterministic)
+            if actions is None:
+                shape = (n, *memory_actions.shape[1:])
+                actions = th.zeros(shape, dtype=memory_actions.dtype, device=observation.device)
+            actions[index] = memory_actions.to(observation.device)
+        assert actions is not None
+        return actions
+
+    def _episodic_actions(self, observation: th.Tensor, deterministic: bool) -> th.Tensor:
+        """Actions of the episodic memory for a batch of (preprocessed-by-``obs_to_tensor``) observations."""
+        raise NotImplementedError
+
+    def _parametric_actions(self, observation: th.Tensor, deterministic: bool) -> th.Tensor:
+        """Actions of the parametric (RL) memory."""
+        raise NotImplementedError
+
+    def update_episodic_memory(self, observations: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> None:
+        """Write one finished episode into the episodic memory (discounted returns per step)."""
+        raise NotImplementedError
+
+    # ----------------------------------------------------------------------------------------------- saving
+    def _episodic_state(self) -> dict[str, th.Tensor]:
+        """Tensors of the episodic memory to save (empty if it is a sub-module that saves itself)."""
+        return {}
+
+    def _load_episodic_state(self, state: dict[str, th.Tensor]) -> None:
+        """Inverse of :meth:`_episodic_state`."""
+
+    def get_extra_state(self) -> dict[str, th.Tensor]:
+        """Score windows and episode counts (plus the episodic memory's tensors) for the ``state_dict``."""
+        state = {
+            "score_returns": th.from_numpy(self.score_windows.returns.copy()),
+            "score_counts": th.from_numpy(self.score_windows.counts.copy()),
+            "episode_counts": th.from_numpy(self.episode_counts.copy()),
+        }
+        state.update(self._episodic_state())
+        return state
+
+    def set_extra_state(self, state: dict[str, th.Tensor]) -> None:
+        state = dict(state)
+        self.score_windows.load_state_dict(
+            {"returns": state.pop("score_returns").numpy(), "counts": state.pop("score_counts").numpy()}
+        )
+        self.episode_counts[...] = state.pop("episode_counts").numpy()
+        self._load_episodic_state(state)
+
+
+class TwoMemoryAlgorithmMixin:
+    """Algorithm side of 2M for an SB3 ``OffPolicyAlgorithm`` whose policy is a :class:`TwoMemoryDispatchMixin`.
+
+    Mix in first (``class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN)``). It
+
+    - acts through the policy's per-env dispatch, with epsilon-greedy applied per env on both memories for
+      Discrete actions (stock DQN draws one epsilon coin for the whole batch of envs);
+    - keeps SB3's random warm-up (``learning_starts``) for RL-run episodes only: EC-run episodes act with the
+      episodic memory from the first step, since EC has nothing to wait for;
+    - tags every stored transition with the memory that collected it and, without data sharing, trains the RL
+      memory on its own transitions only (:class:`~sb3_gcrl.two_memory.buffers.SourceTaggedReplayBuffer`);
+    - feeds each step to the policy, which updates the episodic memory and the score windows at episode ends;
+    - logs ``two_memory/*``: p_ec, both scores (Eq. 5.6), the evaluation memory, episodes per memory, the fraction
+      of envs acting with EC and the fraction of EC data in the buffer.
+    """
+
+    def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
+        previous_obs = self._last_obs  # type: ignore[has-type]
+        result = super()._setup_learn(*args, **kwargs)  # type: ignore[misc]
+        if self._last_obs is not previous_obs or self.policy.acting_memory.size != self.n_envs:
+            # the envs were reset: running episodes (if any) are gone
+            self.policy.reset_episodes(self.n_envs)
+        return result
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        policy = self.policy
+        policy.num_timesteps = self.num_timesteps
+        memories = policy.assign_memories()
+        unscaled_action, _ = policy.predict(self._last_obs, deterministic=False)
+        unscaled_action = np.asarray(unscaled_action).reshape((n_envs, *self.action_space.shape))
+        random_rows = np.zeros(n_envs, dtype=bool)
+        if self.num_timesteps < learning_starts:
+            random_rows |= memories == PARAMETRIC
+        if isinstance(self.action_space, spaces.Discrete):
+            random_rows |= np.random.random(n_envs) < getattr(self, "exploration_rate", 0.0)
+        if random_rows.any():
+            unscaled_action = unscaled_action.copy()
+            for row in np.flatnonzero(random_rows):
+                unscaled_action[row] = self.action_space.sample()
+        if isinstance(self.action_space, spaces.Box):
+            scaled_action = policy.scale_action(unscaled_action)
+            if action_noise is not None:
+                scaled_action = np.clip(scaled_action + action_noise(), -1, 1)
+            return policy.unscale_action(scaled_action), scaled_action
+        return unscaled_action, unscaled_action
+
+    def _store_transition(
+        self,
+        replay_buffer: ReplayBuffer,
+        buffer_action: np.ndarray,
+        new_obs: np.ndarray | dict[str, np.ndarray],
+        reward: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        if self._vec_normalize_env is not None:
+            observations, rewards = self._last_original_obs, self._vec_normalize_env.get_original_reward()
+        else:
+            observations, rewards = self._last_obs, reward
+        if isinstance(replay_buffer, SourceTaggedReplayBuffer):
+            replay_buffer.next_sources[:] = self.policy.acting_memory
+        if isinstance(self.action_space, spaces.Box):
+            executed = self.policy.unscale_action(buffer_action)
+        else:
+            executed = buffer_action
+        super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)  # type: ignore[misc]
+        finished = self.policy.record_step(observations, executed, rewards, dones)
+        if finished:
+            self._log_two_memory(replay_buffer)
+
+    def _log_two_memory(self, replay_buffer: ReplayBuffer | None) -> None:
+        policy = self.policy
+        windows = policy.score_windows
+        self.logger.record("two_memory/p_ec", policy.last_p_ec)
+        for memory, name in ((EPISODIC, "ec"), (PARAMETRIC, "rl")):
+            if windows.n_episodes(memory) > 0:
+                self.logger.record(f"two_memory/score_{name}", windows.score(memory))
+            self.logger.record(f"two_memory/episodes_{name}", int(policy.episode_counts[memory]))
+        self.logger.record("two_memory/eval_memory_is_ec", int(policy.evaluation_memory() == EPISODIC))
+        self.logger.record("two_memory/acting_ec_fraction", float(np.mean(policy.acting_memory == EPISODIC)))
+        if isinstance(replay_buffer, SourceTaggedReplayBuffer):
+            self.logger.record("two_memory/buffer_ec_fraction", replay_buffer.source_fraction(EPISODIC))
+
+    def _replay_ready(self) -> bool:
+        """False while source filtering leaves nothing to sample (no data sharing, no RL episode stored yet)."""
+        buffer = self.replay_buffer
+        filtered = isinstance(buffer, SourceTaggedReplayBuffer) and buffer.filters_sources
+        return not (filtered and buffer.n_sampleable() == 0)
+
+    def _two_memory_replay_kwargs(self, data_sharing: bool) -> None:
+        """Use a :class:`SourceTaggedReplayBuffer` (unless the user gave a buffer class) that, without data sharing,
+        samples RL-collected transitions only."""
+        if self.replay_buffer_class is None:
+            self.replay_buffer_class = SourceTaggedReplayBuffer
+        if issubclass(self.replay_buffer_class, SourceTaggedReplayBuffer):
+            self.replay_buffer_kwargs.setdefault(
+                "sampled_sources", (EPISODIC, PARAMETRIC) if data_sharing else (PARAMETRIC,)
+            )
+        elif not data_sharing:
+            raise ValueError(
+                "data_sharing=False needs a SourceTaggedReplayBuffer (or a subclass) as replay_buffer_class, "
+                f"got {self.replay_buffer_class.__name__}"
+            )
