@@ -1,0 +1,36 @@
+"""Episodic memories and their exact kNN backend (shared by CEC, MFEC and the 2M agents).
+
+Public API (all batched over queries; keys are ``(n, key_dim)`` float32 arrays):
+
+* :class:`KeyEmbedding` — observation (Box or Dict, e.g. ``observation`` + ``desired_goal``) ->
+  key, with an optional seeded Gaussian random projection (thesis Section 4.4).
+* :class:`CECMemory` — continuous episodic control table (thesis Eq. 4.3-4.5):
+  ``update_episode(keys, actions, returns)``, ``select_actions(keys, rng) -> (actions, found)``,
+  ``greedy_actions(keys) -> (actions, found)``, ``state_dict()/load_state_dict()``.
+* :class:`MFECMemory` (one :class:`MFECTable` per action; thesis Eq. 5.2):
+  ``estimate(keys) -> (n, n_actions)``, ``greedy_actions(keys, rng)``,
+  ``update_episode(keys, actions, returns)``, ``state_dict()/load_state_dict()``.
+* :class:`KNNIndex` — exact Euclidean kNN over a preallocated, row-overwritable table
+  (lazily rebuilt KD-tree + brute-forced delta, or faiss brute force).
+* :class:`RecencyOrder` — O(1) least-recently-updated eviction order.
+* :class:`EpisodeBuffers`, :func:`discounted_returns` — per-env running episodes and their returns.
+"""
+
+from sb3_gcrl.memory.cec_memory import CECMemory
+from sb3_gcrl.memory.embedding import GOAL_ENV_KEYS, KeyEmbedding
+from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
+from sb3_gcrl.memory.knn import KNNIndex
+from sb3_gcrl.memory.mfec_memory import MFECMemory, MFECTable
+from sb3_gcrl.memory.recency import RecencyOrder
+
+__all__ = [
+    "GOAL_ENV_KEYS",
+    "CECMemory",
+    "EpisodeBuffers",
+    "KNNIndex",
+    "KeyEmbedding",
+    "MFECMemory",
+    "MFECTable",
+    "RecencyOrder",
+    "discounted_returns",
+]

@@ -1,0 +1,205 @@
+"""The MFEC episodic memory: one bounded value table per discrete action (thesis Section 5.2.3).
+
+Update (Eq. 5.2): for a state key already stored for action ``a`` (exact match) the value becomes
+``max(G, Q_ec(s, a))``; otherwise the key is added, evicting the least recently updated row of that
+action's table when it is full. Exact matches are found with a hash map (O(1)), so updates never
+search the kNN index.
+
+Estimate: the stored value on an exact match; ``+inf`` while the action's table holds ``<= k``
+rows (so untried actions are preferred, as in the authors' code); otherwise the mean value of the
+``k`` nearest rows.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from sb3_gcrl.memory.knn import KNNBackend, KNNIndex
+from sb3_gcrl.memory.recency import RecencyOrder
+
+
+class MFECTable:
+    """The value table ``Q_ec(., a)`` of one action.
+
+    :param key_dim: key dimension.
+    :param capacity: maximum number of rows.
+    :param n_neighbors: ``k`` of the kNN estimate.
+    :param knn_backend: see :class:`~sb3_gcrl.memory.knn.KNNIndex`.
+    :param rebuild_threshold: see :class:`~sb3_gcrl.memory.knn.KNNIndex`.
+    """
+
+    def __init__(
+        self,
+        key_dim: int,
+        capacity: int,
+        n_neighbors: int = 3,
+        knn_backend: KNNBackend = "auto",
+        rebuild_threshold: int | None = None,
+    ) -> None:
+        if n_neighbors < 1:
+            raise ValueError(f"n_neighbors (k) must be >= 1, got {n_neighbors}")
+        self.key_dim = int(key_dim)
+        self.capacity = int(capacity)
+        self.n_neighbors = int(n_neighbors)
+        self.index = KNNIndex(key_dim, self.capacity, backend=knn_backend, rebuild_threshold=rebuild_threshold)
+        self.values = np.zeros(self.capacity, dtype=np.float64)
+        self.recency = RecencyOrder(self.capacity)
+        self._row_of: dict[bytes, int] = {}  # exact key bytes -> row
+
+    def __len__(self) -> int:
+        return self.index.size
+
+    def lookup(self, key: np.ndarray) -> int:
+        """Row holding exactly ``key`` (float32), or -1."""
+        return self._row_of.get(key.tobytes(), -1)
+
+    def update(self, key: np.ndarray, value: float) -> bool:
+        """Eq. 5.2 for one ``(s, G)``; ``key`` must be float32. Returns True if a new row was written."""
+        row = self._row_of.get(key.tobytes(), -1)
+        if row >= 0:
+            if value > self.values[row]:
+                self.values[row] = value
+            self.recency.touch(row)
+            return False
+        if self.index.size < self.capacity:
+            row = self.index.add(key)
+        else:
+            row = self.recency.oldest()
+            del self._row_of[self.index.keys[row].tobytes()]
+            self.index.set_key(row, key)
+        self._row_of[key.tobytes()] = row
+        self.values[row] = value
+        self.recency.touch(row)
+        return True
+
+    def estimate(self, keys: np.ndarray) -> np.ndarray:
+        """``Q_ec(s, a)`` for a batch of float32 keys ``(n, key_dim)`` -> ``(n,)``."""
+        n = len(keys)
+        if len(self) <= self.n_neighbors:
+            out = np.full(n, np.inf)
+        else:
+            _, rows = self.index.search(keys, self.n_neighbors)
+            out = self.values[rows].mean(axis=1)
+        for i in range(n):  # exact matches override the kNN mean
+            row = self._row_of.get(keys[i].tobytes(), -1)
+            if row >= 0:
+                out[i] = self.values[row]
+        return out
+
+    def state_dict(self) -> dict[str, Any]:
+        """Used rows only."""
+        n = len(self)
+        return {
+            "keys": self.index.keys[:n].copy(),
+            "values": self.values[:n].copy(),
+            "last_update": self.recency.last_update[:n].copy(),
+            "clock": int(self.recency.clock),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore exactly what :meth:`state_dict` returned."""
+        keys = np.ascontiguousarray(state["keys"], dtype=np.float32)
+        n = len(keys)
+        if keys.ndim != 2 or keys.shape[1] != self.key_dim:
+            raise ValueError(f"Saved keys have shape {keys.shape}, this table expects (n, {self.key_dim})")
+        if n > self.capacity:
+            raise ValueError(f"Saved table has {n} rows, more than capacity={self.capacity}; raise the capacity")
+        self.index.load_keys(keys)
+        self.values[:n] = np.asarray(state["values"], dtype=np.float64)
+        self.recency.rebuild_from_timestamps(np.asarray(state["last_update"], dtype=np.int64), int(state["clock"]))
+        self._row_of = {keys[i].tobytes(): i for i in range(n)}
+
+    def clear(self) -> None:
+        """Remove every row."""
+        self.index.clear()
+        self.recency.clear()
+        self._row_of.clear()
+
+
+class MFECMemory:
+    """MFEC: one :class:`MFECTable` per action (thesis Section 5.2.3, Eq. 5.2).
+
+    :param key_dim: key dimension (8 with the usual random projection).
+    :param n_actions: number of discrete actions.
+    :param capacity_per_action: rows per action table (authors: ``1e5 / (2 * n_actions)`` in 2M).
+    :param n_neighbors: ``k`` of the kNN estimate (authors: 3).
+    :param knn_backend: see :class:`~sb3_gcrl.memory.knn.KNNIndex`.
+    :param rebuild_threshold: see :class:`~sb3_gcrl.memory.knn.KNNIndex`.
+    """
+
+    def __init__(
+        self,
+        key_dim: int,
+        n_actions: int,
+        capacity_per_action: int = 100_000,
+        n_neighbors: int = 3,
+        knn_backend: KNNBackend = "auto",
+        rebuild_threshold: int | None = None,
+    ) -> None:
+        if n_actions < 1:
+            raise ValueError(f"n_actions must be >= 1, got {n_actions}")
+        if capacity_per_action < 1:
+            raise ValueError(f"capacity_per_action must be >= 1, got {capacity_per_action}")
+        self.key_dim = int(key_dim)
+        self.n_actions = int(n_actions)
+        self.capacity_per_action = int(capacity_per_action)
+        self.n_neighbors = int(n_neighbors)
+        self.tables = [
+            MFECTable(key_dim, capacity_per_action, n_neighbors, knn_backend, rebuild_threshold)
+            for _ in range(n_actions)
+        ]
+
+    def __len__(self) -> int:
+        return sum(len(t) for t in self.tables)
+
+    def estimate(self, keys: np.ndarray) -> np.ndarray:
+        """``Q_ec(s, a)`` for every action: ``(n, key_dim)`` keys -> ``(n, n_actions)``."""
+        keys = np.ascontiguousarray(keys, dtype=np.float32)
+        return np.stack([table.estimate(keys) for table in self.tables], axis=1)
+
+    def greedy_actions(self, keys: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+        """``argmax_a Q_ec(s, a)``; ties (e.g. several untried actions at ``+inf``) are broken uniformly
+        at random with ``rng``, or by lowest index when ``rng`` is None."""
+        q = self.estimate(keys)
+        if rng is None:
+            return q.argmax(axis=1)
+        ties = q == q.max(axis=1, keepdims=True)
+        return (rng.random(q.shape) * ties).argmax(axis=1)
+
+    def update_episode(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> int:
+        """Eq. 5.2 for every step of a finished episode.
+
+        :param keys: ``(T, key_dim)``; :param actions: ``(T,)`` ints; :param returns: ``(T,)``.
+        :return: number of new rows written.
+        """
+        keys = np.ascontiguousarray(keys, dtype=np.float32).reshape(len(keys), self.key_dim)
+        actions = np.asarray(actions).reshape(-1).astype(np.int64)
+        returns = np.asarray(returns, dtype=np.float64)
+        if not (len(keys) == len(actions) == len(returns)):
+            raise ValueError(f"keys, actions, returns lengths differ: {len(keys)}, {len(actions)}, {len(returns)}")
+        if len(actions) and (actions.min() < 0 or actions.max() >= self.n_actions):
+            raise ValueError(f"actions must lie in [0, {self.n_actions}), got {actions.min()}..{actions.max()}")
+        added = 0
+        for t in range(len(keys) - 1, -1, -1):
+            added += self.tables[actions[t]].update(keys[t], float(returns[t]))
+        return added
+
+    def state_dict(self) -> dict[str, Any]:
+        """Used rows of every table, keys prefixed ``"a<i>/"``."""
+        out: dict[str, Any] = {}
+        for a, table in enumerate(self.tables):
+            out.update({f"a{a}/{name}": value for name, value in table.state_dict().items()})
+        return out
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore exactly what :meth:`state_dict` returned."""
+        for a, table in enumerate(self.tables):
+            prefix = f"a{a}/"
+            table.load_state_dict({k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)})
+
+    def clear(self) -> None:
+        """Remove every row."""
+        for table in self.tables:
+            table.clear()
