@@ -1,0 +1,125 @@
+"""Reset-free task suite of thesis Ch. 3 (Section 3.7.1, Figure 3.3) as registered goal environments.
+
+Each env is a gymnasium-robotics-style goal env (Dict obs ``observation``/``achieved_goal``/``desired_goal``,
+vectorised ``compute_reward``, ``info["is_success"]``) that declares its task-relevant goals on the unwrapped
+env: ``sample_initial_goal(rng)`` (rho_0) and ``sample_evaluation_goal(rng)`` (rho_g*). The envs themselves are
+episodic (registered with ``max_episode_steps`` = the evaluation horizon); reset-free training wraps them
+with the reset-free wrapper, using :data:`RESET_FREE_TASKS` for the hard-reset interval. PointUMaze, the
+eighth task, is ``GCRL/PointUMazeGoal-v0`` from :mod:`sb3_gcrl.envs`.
+
+=====================================  ==========  =================  =========================================
+id                                     eval steps  hard reset every   source
+=====================================  ==========  =================  =========================================
+GCRL/ResetFreeFetchPush-v0             50          1e5                IBC ergodic Fetch Push
+GCRL/ResetFreeFetchPickAndPlace-v0     50          1e5                IBC ergodic Fetch Pick&Place
+GCRL/ResetFreeFetchPushHard-v0         50          1e5                thesis Push (hard)
+GCRL/ResetFreeFetchPickAndPlaceHard-v0 50          1e5                thesis Pick&Place (hard)
+GCRL/ResetFreeAntArena-v0              500         2e5                thesis Ant (from PEG's AntMaze)
+GCRL/Tabletop-v0                       200         2e5                EARL Tabletop
+GCRL/SawyerDoor-v0                     300         2e5                EARL Sawyer Door (needs metaworld)
+=====================================  ==========  =================  =========================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gymnasium as gym
+
+from sb3_gcrl.envs.reset_free import ant, fetch, sawyer_door, tabletop
+
+
+@dataclass(frozen=True)
+class ResetFreeTask:
+    """Evaluation protocol of one reset-free task (thesis Section 3.7.1).
+
+    :param env_id: registered id.
+    :param entry_point: ``module:Class`` of the env.
+    :param eval_horizon: steps of an episodic evaluation episode (also the registered ``max_episode_steps``).
+    :param hard_reset_every: physical reset interval of reset-free training (EARL/IBC/thesis).
+    :param source: where the task comes from.
+    """
+
+    env_id: str
+    entry_point: str
+    eval_horizon: int
+    hard_reset_every: int
+    source: str
+
+
+_FETCH = "sb3_gcrl.envs.reset_free.fetch"
+#: Every task of the suite by id. The reset-free configs read ``eval_horizon`` and ``hard_reset_every`` here.
+RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
+    task.env_id: task
+    for task in (
+        ResetFreeTask(
+            "GCRL/ResetFreeFetchPush-v0",
+            f"{_FETCH}:ResetFreeFetchPushEnv",
+            fetch.EVAL_HORIZON,
+            fetch.HARD_RESET_EVERY,
+            "IBC ergodic Fetch Push",
+        ),
+        ResetFreeTask(
+            "GCRL/ResetFreeFetchPickAndPlace-v0",
+            f"{_FETCH}:ResetFreeFetchPickAndPlaceEnv",
+            fetch.EVAL_HORIZON,
+            fetch.HARD_RESET_EVERY,
+            "IBC ergodic Fetch Pick&Place",
+        ),
+        ResetFreeTask(
+            "GCRL/ResetFreeFetchPushHard-v0",
+            f"{_FETCH}:ResetFreeFetchPushHardEnv",
+            fetch.EVAL_HORIZON,
+            fetch.HARD_RESET_EVERY,
+            "thesis Push (hard)",
+        ),
+        ResetFreeTask(
+            "GCRL/ResetFreeFetchPickAndPlaceHard-v0",
+            f"{_FETCH}:ResetFreeFetchPickAndPlaceHardEnv",
+            fetch.EVAL_HORIZON,
+            fetch.HARD_RESET_EVERY,
+            "thesis Pick&Place (hard)",
+        ),
+        ResetFreeTask(
+            "GCRL/ResetFreeAntArena-v0",
+            "sb3_gcrl.envs.reset_free.ant:ResetFreeAntArenaEnv",
+            ant.EVAL_HORIZON,
+            ant.HARD_RESET_EVERY,
+            "thesis Ant (PEG AntMaze, square arena)",
+        ),
+        ResetFreeTask(
+            "GCRL/Tabletop-v0",
+            "sb3_gcrl.envs.reset_free.tabletop:TabletopEnv",
+            tabletop.EVAL_HORIZON,
+            tabletop.HARD_RESET_EVERY,
+            "EARL Tabletop",
+        ),
+        ResetFreeTask(
+            "GCRL/SawyerDoor-v0",
+            "sb3_gcrl.envs.reset_free.sawyer_door:SawyerDoorEnv",
+            sawyer_door.EVAL_HORIZON,
+            sawyer_door.HARD_RESET_EVERY,
+            "EARL Sawyer Door (metaworld)",
+        ),
+    )
+}
+RESET_FREE_ENV_IDS: tuple[str, ...] = tuple(RESET_FREE_TASKS)
+
+
+def register_reset_free_envs() -> None:
+    """Register the reset-free task suite under ``GCRL/`` (idempotent).
+
+    ``GCRL/SawyerDoor-v0`` is always registered; making it without metaworld raises an ImportError that names
+    the install command.
+    """
+    for task in RESET_FREE_TASKS.values():
+        if task.env_id not in gym.registry:
+            gym.register(id=task.env_id, entry_point=task.entry_point, max_episode_steps=task.eval_horizon)
+
+
+__all__ = [
+    "RESET_FREE_ENV_IDS",
+    "RESET_FREE_TASKS",
+    "ResetFreeTask",
+    "register_reset_free_envs",
+]

@@ -1,0 +1,306 @@
+"""Reset-free Fetch manipulation tasks (thesis Section 3.7.1, "Fetch Push and Pick&Place", "Push (hard)",
+"Pick&Place (hard)"; Figure 3.3).
+
+Four goal environments built on gymnasium-robotics' ``MujocoFetchEnv`` (the ``FetchPush-v4`` /
+``FetchPickAndPlace-v4`` robot, table and block). All keep Fetch's spaces: ``observation`` (25,),
+``achieved_goal``/``desired_goal`` (3,) block position, action Box(-1, 1, (4,)) (xyz gripper displacement
+x 5 cm + finger command), sparse reward ``-(d >= 0.05)`` with ``info["is_success"] = d < 0.05``, and they never
+terminate (every state can be left). Registered with ``max_episode_steps=EVAL_HORIZON``.
+
+``GCRL/ResetFreeFetchPush-v0``, ``GCRL/ResetFreeFetchPickAndPlace-v0`` (IBC's "ergodic" Fetch, thesis: "taken
+from the IBC paper"):
+    Initial block and goal distributions identical to FetchPush/FetchPickAndPlace (block and goal within
+    +-15 cm of the gripper's start; Pick&Place goals in the air w.p. 0.5, up to 45 cm). The block is kept on the
+    table by four *object-only* walls bounding a 0.4 m x 0.4 m square centred at :data:`IBC_BOX_CENTER`: the
+    walls collide with the block but not with the robot (MuJoCo contype/conaffinity bit 2), so - as in IBC -
+    only the block is constrained and the arm moves anywhere. Departure: IBC bounds the block with joint
+    limits, which jitter at the limit (thesis Section 3.7.1); contacts with a wall are the cleaner equivalent.
+    Push keeps Fetch's blocked gripper, as IBC.
+
+``GCRL/ResetFreeFetchPushHard-v0``, ``GCRL/ResetFreeFetchPickAndPlaceHard-v0`` (the thesis's own variants):
+    Real walls (colliding with robot and block) stand on the four table edges, enclosing the whole table top
+    (0.5 m x 0.7 m, :data:`HARD_ARENA_LOW`/:data:`HARD_ARENA_HIGH`, about 2.2x IBC's area), and the gripper's
+    mocap target is clipped to that arena (the robot's workspace is limited, so a block in a corner needs a
+    precise approach). The gripper is released in both (Push in gymnasium-robotics hard-codes
+    ``block_gripper=True``; overridden here). The block always starts at :data:`HARD_OBJECT_START` (table
+    centre). Push (hard) goals: U(-0.15, 0.15)^2 around that point, on the table. Pick&Place (hard) goals:
+    only in the air, uniform in a 5 x 5 x 10 cm box above the start point, 10-20 cm above the table.
+    Our choices where the thesis gives no number: arena = table top, start = table centre, gripper start 20 cm
+    above the table (Pick&Place's, also for Push (hard), since the thesis gives both the same initial state),
+    height of the air box.
+
+Task-relevant goals (rho_0 / rho_g*) are declared by :meth:`sample_initial_goal` (block start position) and
+:meth:`sample_evaluation_goal`; the env's own resets draw from the same two samplers.
+Evaluation horizon 50 steps; EARL/IBC-style hard reset every 1e5 steps (thesis: "Hard reset will happen
+after every 1e5 steps").
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import mujoco
+import numpy as np
+from gymnasium.utils import EzPickle
+from gymnasium_robotics.envs.fetch.fetch_env import MujocoFetchEnv
+from gymnasium_robotics.envs.fetch.pick_and_place import MODEL_XML_PATH as PICK_AND_PLACE_XML
+from gymnasium_robotics.envs.fetch.push import MODEL_XML_PATH as PUSH_XML
+
+#: Evaluation episode length (steps), thesis Section 3.7.1 / IBC.
+EVAL_HORIZON = 50
+#: Physical (hard) reset interval of reset-free training, thesis Section 3.7.1 / IBC ``train_horizon``.
+HARD_RESET_EVERY = 100_000
+#: Goal-reaching threshold on the block position (metres), as Fetch.
+DISTANCE_THRESHOLD = 0.05
+
+#: Table top height (z) of the Fetch scene; the table spans x in [1.05, 1.55], y in [0.40, 1.10].
+TABLE_TOP_Z = 0.4
+#: Centre and half-size (xy, metres) of the object-only box of the IBC-style tasks (IBC: a 0.4 m box).
+IBC_BOX_CENTER = (1.34, 0.75)
+IBC_BOX_HALF_SIZE = 0.2
+#: Inner faces of the real walls of the hard tasks: the four table edges.
+HARD_ARENA_LOW = (1.05, 0.40)
+HARD_ARENA_HIGH = (1.55, 1.10)
+#: Height of the hard tasks' walls above the table (metres).
+HARD_WALL_HEIGHT = 0.15
+#: Block start (xy) of the hard tasks: table centre.
+HARD_OBJECT_START = (1.30, 0.75)
+#: Pick&Place (hard) goal box: half-size in xy and height range above the resting block (metres).
+HARD_AIR_GOAL_HALF_XY = 0.025
+HARD_AIR_GOAL_HEIGHT = (0.10, 0.20)
+
+_WALL_HALF_THICKNESS = 0.01
+# Collision bit shared only by the block and the object-only walls (bit 0 is MuJoCo's default).
+_OBJECT_ONLY_BIT = 2
+
+
+class ResetFreeFetchEnv(MujocoFetchEnv):
+    """Fetch block manipulation with walls added to the scene (base class of the four tasks).
+
+    Subclasses set the wall geometry and gripper limits through class attributes and the task-relevant goal
+    distributions through :meth:`sample_initial_goal` / :meth:`sample_evaluation_goal`.
+
+    :param model_path: Fetch scene XML (push or pick-and-place).
+    :param block_gripper: keep the fingers closed (IBC Push) or let the agent open/close them.
+    :param gripper_extra_height: start height of the gripper above Fetch's default pose.
+    :param target_in_the_air: Pick&Place-style goals (used by the IBC-style evaluation goal sampler).
+    :param reward_type: ``"sparse"`` (-1/0, default) or ``"dense"`` (negative distance), as Fetch.
+    :param kwargs: forwarded to ``MujocoFetchEnv`` (``render_mode``, ``width``, ``height``, ...).
+    """
+
+    EVAL_HORIZON: ClassVar[int] = EVAL_HORIZON
+    HARD_RESET_EVERY: ClassVar[int] = HARD_RESET_EVERY
+    #: Inner faces of the four walls (xy low corner, xy high corner) and their top height.
+    wall_low: ClassVar[tuple[float, float]]
+    wall_high: ClassVar[tuple[float, float]]
+    wall_top_z: ClassVar[float] = TABLE_TOP_Z + 1.0
+    #: True: walls collide with robot and block. False: only with the block (invisible to the robot).
+    walls_stop_robot: ClassVar[bool]
+    #: Bounds of the gripper's mocap target (xyz low, xyz high), or None for Fetch's unlimited workspace.
+    gripper_low: ClassVar[tuple[float, float, float] | None] = None
+    gripper_high: ClassVar[tuple[float, float, float] | None] = None
+
+    def __init__(
+        self,
+        model_path: str,
+        block_gripper: bool,
+        gripper_extra_height: float,
+        target_in_the_air: bool,
+        reward_type: str = "sparse",
+        **kwargs: Any,
+    ) -> None:
+        if reward_type not in ("sparse", "dense"):
+            raise ValueError(f"reward_type must be 'sparse' or 'dense', got {reward_type!r}")
+        initial_qpos = {
+            "robot0:slide0": 0.405,
+            "robot0:slide1": 0.48,
+            "robot0:slide2": 0.0,
+            "object0:joint": [1.25, 0.53, 0.4, 1.0, 0.0, 0.0, 0.0],
+        }
+        super().__init__(
+            model_path=model_path,
+            has_object=True,
+            block_gripper=block_gripper,
+            n_substeps=20,
+            gripper_extra_height=gripper_extra_height,
+            target_in_the_air=target_in_the_air,
+            target_offset=0.0,
+            obj_range=0.15,
+            target_range=0.15,
+            distance_threshold=DISTANCE_THRESHOLD,
+            initial_qpos=initial_qpos,
+            reward_type=reward_type,
+            **kwargs,
+        )
+        self._mocap_low = None if self.gripper_low is None else np.asarray(self.gripper_low, dtype=np.float64)
+        self._mocap_high = None if self.gripper_high is None else np.asarray(self.gripper_high, dtype=np.float64)
+
+    # --- scene construction -------------------------------------------------------------------------------------
+    def _initialize_simulation(self) -> None:
+        # As MujocoRobotEnv._initialize_simulation, but the model is compiled from an MjSpec with the walls added
+        # (no temporary XML file is written).
+        spec = mujoco.MjSpec.from_file(self.fullpath)
+        self._add_walls(spec)
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self._model_names = self._utils.MujocoModelNames(self.model)
+        self.model.vis.global_.offwidth = self.width
+        self.model.vis.global_.offheight = self.height
+        self._env_setup(initial_qpos=self.initial_qpos)
+        self.initial_time = self.data.time
+        self.initial_qpos = np.copy(self.data.qpos)
+        self.initial_qvel = np.copy(self.data.qvel)
+
+    def _add_walls(self, spec: mujoco.MjSpec) -> None:
+        (x_lo, y_lo), (x_hi, y_hi) = self.wall_low, self.wall_high
+        half_height = (self.wall_top_z - TABLE_TOP_Z) / 2.0
+        z = TABLE_TOP_Z + half_height
+        t = _WALL_HALF_THICKNESS
+        x_mid, y_mid = (x_lo + x_hi) / 2.0, (y_lo + y_hi) / 2.0
+        x_half, y_half = (x_hi - x_lo) / 2.0 + 2 * t, (y_hi - y_lo) / 2.0 + 2 * t
+        walls = {
+            "x_low": ([x_lo - t, y_mid, z], [t, y_half, half_height]),
+            "x_high": ([x_hi + t, y_mid, z], [t, y_half, half_height]),
+            "y_low": ([x_mid, y_lo - t, z], [x_half, t, half_height]),
+            "y_high": ([x_mid, y_hi + t, z], [x_half, t, half_height]),
+        }
+        if self.walls_stop_robot:
+            bits, rgba = 1, [0.55, 0.45, 0.35, 1.0]
+        else:
+            bits, rgba = _OBJECT_ONLY_BIT, [0.3, 0.3, 0.9, 0.15]
+            block = spec.geom("object0")
+            block.contype = block.contype | _OBJECT_ONLY_BIT
+            block.conaffinity = block.conaffinity | _OBJECT_ONLY_BIT
+        for side, (pos, size) in walls.items():
+            spec.worldbody.add_geom(
+                name=f"arena_wall_{side}",
+                type=mujoco.mjtGeom.mjGEOM_BOX,
+                pos=pos,
+                size=size,
+                rgba=rgba,
+                contype=bits,
+                conaffinity=bits,
+                condim=3,
+            )
+
+    # --- dynamics -----------------------------------------------------------------------------------------------
+    def _set_action(self, action: np.ndarray) -> None:
+        super()._set_action(action)
+        if self._mocap_low is not None:
+            # Limited robot workspace: the gripper's target never leaves the walled arena.
+            np.clip(self.data.mocap_pos, self._mocap_low, self._mocap_high, out=self.data.mocap_pos)
+
+    def _reset_sim(self) -> bool:
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.time = self.initial_time
+        self.data.qpos[:] = self.initial_qpos
+        self.data.qvel[:] = self.initial_qvel
+        object_qpos = self._utils.get_joint_qpos(self.model, self.data, "object0:joint").copy()
+        object_qpos[:2] = self.sample_initial_goal(self.np_random)[:2]
+        self._utils.set_joint_qpos(self.model, self.data, "object0:joint", object_qpos)
+        mujoco.mj_forward(self.model, self.data)
+        return True
+
+    def _sample_goal(self) -> np.ndarray:
+        return self.sample_evaluation_goal(self.np_random)
+
+    def compute_terminated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: dict) -> bool:
+        # The only state the robot cannot leave: the block fell off the table (the walls make this practically
+        # impossible; a block lifted over a hard-task wall and dropped outside would be one).
+        return bool(achieved_goal[2] < TABLE_TOP_Z - 0.05)
+
+    # --- task-relevant goals ------------------------------------------------------------------------------------
+    def sample_initial_goal(self, rng: np.random.Generator) -> np.ndarray:
+        """rho_0: a block start position (goal space = block xyz)."""
+        raise NotImplementedError
+
+    def sample_evaluation_goal(self, rng: np.random.Generator) -> np.ndarray:
+        """rho_g*: an evaluation goal for the block."""
+        raise NotImplementedError
+
+
+class _IBCFetchEnv(ResetFreeFetchEnv):
+    """IBC's ergodic Fetch: Fetch's own start/goal distributions, block held in a 0.4 m object-only box."""
+
+    wall_low = (IBC_BOX_CENTER[0] - IBC_BOX_HALF_SIZE, IBC_BOX_CENTER[1] - IBC_BOX_HALF_SIZE)
+    wall_high = (IBC_BOX_CENTER[0] + IBC_BOX_HALF_SIZE, IBC_BOX_CENTER[1] + IBC_BOX_HALF_SIZE)
+    walls_stop_robot = False
+
+    def sample_initial_goal(self, rng: np.random.Generator) -> np.ndarray:
+        """rho_0 as Fetch: gripper start xy + U(-0.15, 0.15)^2, at least 10 cm from the gripper, on the table."""
+        center = self.initial_gripper_xpos[:2]
+        xy = center
+        while np.linalg.norm(xy - center) < 0.1:
+            xy = center + rng.uniform(-self.obj_range, self.obj_range, size=2)
+        return np.array([xy[0], xy[1], self.height_offset])
+
+    def sample_evaluation_goal(self, rng: np.random.Generator) -> np.ndarray:
+        """rho_g* as Fetch: gripper start + U(-0.15, 0.15)^3 on the table; Pick&Place: w.p. 0.5 up to 45 cm up."""
+        goal = self.initial_gripper_xpos[:3] + rng.uniform(-self.target_range, self.target_range, size=3)
+        goal[2] = self.height_offset
+        if self.target_in_the_air and rng.uniform() < 0.5:
+            goal[2] += rng.uniform(0, 0.45)
+        return goal
+
+
+class _HardFetchEnv(ResetFreeFetchEnv):
+    """The thesis's hard Fetch: real walls on the table edges, limited gripper workspace, released gripper."""
+
+    wall_low = HARD_ARENA_LOW
+    wall_high = HARD_ARENA_HIGH
+    # 15 cm tall: taller walls on the robot side are hit by the upper arm when the gripper reaches the near edge.
+    wall_top_z = TABLE_TOP_Z + HARD_WALL_HEIGHT
+    walls_stop_robot = True
+    # The mocap target (gripper link) stays 3 cm inside the walls (where the gripper link touches them) and
+    # at most 35 cm above the table.
+    gripper_low = (HARD_ARENA_LOW[0] + 0.03, HARD_ARENA_LOW[1] + 0.03, TABLE_TOP_Z)
+    gripper_high = (HARD_ARENA_HIGH[0] - 0.03, HARD_ARENA_HIGH[1] - 0.03, TABLE_TOP_Z + 0.35)
+
+    def sample_initial_goal(self, rng: np.random.Generator) -> np.ndarray:
+        """rho_0: the fixed block start (table centre, resting on the table)."""
+        return np.array([HARD_OBJECT_START[0], HARD_OBJECT_START[1], self.height_offset])
+
+
+class ResetFreeFetchPushEnv(_IBCFetchEnv, EzPickle):
+    """``GCRL/ResetFreeFetchPush-v0``: IBC's ergodic Fetch Push (blocked gripper, block kept in a 0.4 m box)."""
+
+    def __init__(self, reward_type: str = "sparse", **kwargs: Any) -> None:
+        super().__init__(PUSH_XML, True, 0.0, False, reward_type=reward_type, **kwargs)
+        EzPickle.__init__(self, reward_type=reward_type, **kwargs)
+
+
+class ResetFreeFetchPickAndPlaceEnv(_IBCFetchEnv, EzPickle):
+    """``GCRL/ResetFreeFetchPickAndPlace-v0``: IBC's ergodic Fetch Pick&Place (block kept in a 0.4 m box)."""
+
+    def __init__(self, reward_type: str = "sparse", **kwargs: Any) -> None:
+        super().__init__(PICK_AND_PLACE_XML, False, 0.2, True, reward_type=reward_type, **kwargs)
+        EzPickle.__init__(self, reward_type=reward_type, **kwargs)
+
+
+class ResetFreeFetchPushHardEnv(_HardFetchEnv, EzPickle):
+    """``GCRL/ResetFreeFetchPushHard-v0``: Push (hard), goals U(-0.15, 0.15)^2 around the block start."""
+
+    def __init__(self, reward_type: str = "sparse", **kwargs: Any) -> None:
+        # The finger actuators live in the pick-and-place scene; push.xml has none, so a "released" gripper
+        # needs that scene (the two XML files differ only in those actuators).
+        super().__init__(PICK_AND_PLACE_XML, False, 0.2, False, reward_type=reward_type, **kwargs)
+        EzPickle.__init__(self, reward_type=reward_type, **kwargs)
+
+    def sample_evaluation_goal(self, rng: np.random.Generator) -> np.ndarray:
+        """rho_g*: block start + U(-0.15, 0.15)^2, on the table."""
+        xy = np.asarray(HARD_OBJECT_START) + rng.uniform(-self.target_range, self.target_range, size=2)
+        return np.array([xy[0], xy[1], self.height_offset])
+
+
+class ResetFreeFetchPickAndPlaceHardEnv(_HardFetchEnv, EzPickle):
+    """``GCRL/ResetFreeFetchPickAndPlaceHard-v0``: Pick&Place (hard), goals only in the air above the start."""
+
+    def __init__(self, reward_type: str = "sparse", **kwargs: Any) -> None:
+        super().__init__(PICK_AND_PLACE_XML, False, 0.2, True, reward_type=reward_type, **kwargs)
+        EzPickle.__init__(self, reward_type=reward_type, **kwargs)
+
+    def sample_evaluation_goal(self, rng: np.random.Generator) -> np.ndarray:
+        """rho_g*: uniform in a 5 x 5 x 10 cm box, 10-20 cm above the resting block at the start point."""
+        xy = np.asarray(HARD_OBJECT_START) + rng.uniform(-HARD_AIR_GOAL_HALF_XY, HARD_AIR_GOAL_HALF_XY, size=2)
+        z = self.height_offset + rng.uniform(*HARD_AIR_GOAL_HEIGHT)
+        return np.array([xy[0], xy[1], z])
