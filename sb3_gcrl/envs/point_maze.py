@@ -1,0 +1,273 @@
+"""PointUMaze and Point4Rooms: the thesis's point-mass navigation tasks on gymnasium-robotics PointMaze.
+
+Thesis sources: Ch. 4 (CEC, Sec. 4.5.2, Fig. 4.3, Table 4.4: episodic, sparse reward, start bottom-left,
+goal top-left of the U / the far room, "small randomness" on both), Ch. 3 (MoReFree, Sec. 3.7.1:
+PointUMaze start (0, 0) bottom-left with U(-0.1, 0.1) noise, evaluation goal top-left, 100 evaluation
+steps) and Ch. 6 (post-exploration, Fig. 6.5).
+
+Registered ids (cell size 1, origin at the map centre, success radius 0.45 as in gymnasium-robotics):
+
+============================  ==================  =========  ==========================================
+id                            observation         horizon    episode end
+============================  ==================  =========  ==========================================
+``GCRL/PointUMaze-v0``        Box (4,)            1000       terminates at the goal, reward 1
+``GCRL/Point4Rooms-v0``       Box (4,)            1000       terminates at the goal, reward 1
+``GCRL/PointUMazeGoal-v0``    Dict goal env       300        never terminates; reward 1 while in the goal
+``GCRL/Point4RoomsGoal-v0``   Dict goal env       600        never terminates; reward 1 while in the goal
+============================  ==================  =========  ==========================================
+
+- Observation: PointMaze's ``(x, y, vx, vy)`` (float64). Goal variants: ``Dict(observation (4,),
+  achieved_goal (2,) = (x, y), desired_goal (2,))`` with a vectorised ``compute_reward``.
+- Action: ``Box(-1, 1, (2,))``, forces on the ball.
+- Start: centre of ``start_cell`` + U(-0.1, 0.1) per coordinate; goal: centre of ``goal_cell`` +
+  U(-0.1, 0.1). U-maze: start (row 3, col 1) bottom-left, goal (1, 1) top-left of the U. Four rooms
+  (11x11, rooms of 4x4 cells, one-cell doorways): start (9, 1) in the bottom-left room, goal (1, 9) in the
+  top-right (far) room.
+- ``info["is_success"]`` (and PointMaze's ``info["success"]``): ``||(x, y) - goal|| <= 0.45``.
+- Task-relevant goals: ``sample_initial_goal`` draws from the start region (rho_0),
+  ``sample_evaluation_goal`` from the goal region (rho_g*); ``reset`` draws from exactly these.
+
+Departures from the thesis: the thesis (CEC) used the ``mujoco_maze`` package (cells of 4 units, a
+point with an orientation, obs reduced to (x, y, orientation), Point4Rooms with 0.5-reward sub-goals); we
+build on gymnasium-robotics' maintained PointMaze instead: cells of 1 unit, a ball without orientation,
+no sub-goals. Traversing the U takes a simple waypoint controller about 200 steps here, so the goal
+variants use 300 (U) / 600 (four rooms) steps instead of IBC's 100-step evaluation, and the episodic ones
+keep the thesis's 1000 steps. The goal variants do not terminate at the goal (as IBC's PointUMaze and
+gymnasium-robotics' default), which keeps HER relabelling consistent; pass ``terminate_at_goal=True`` to
+``gym.make`` to change that.
+"""
+
+from __future__ import annotations
+
+import os
+from os import path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium_robotics.envs.maze import point as point_module
+from gymnasium_robotics.envs.maze.maze_v4 import Maze
+from gymnasium_robotics.envs.maze.point import PointEnv
+from gymnasium_robotics.utils.mujoco_utils import MujocoModelNames
+
+U_MAZE_MAP: list[list[int]] = [
+    [1, 1, 1, 1, 1],
+    [1, 0, 0, 0, 1],
+    [1, 1, 1, 0, 1],
+    [1, 0, 0, 0, 1],
+    [1, 1, 1, 1, 1],
+]
+U_MAZE_START_CELL = (3, 1)  # bottom-left
+U_MAZE_GOAL_CELL = (1, 1)  # top-left of the U
+
+FOUR_ROOMS_MAP: list[list[int]] = [
+    [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1],
+    [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1],
+    [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1],
+    [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1],
+    [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1],
+    [1, 1, 0, 1, 1, 1, 1, 1, 0, 1, 1],
+    [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1],
+    [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1],
+    [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1],
+    [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1],
+    [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1],
+]
+FOUR_ROOMS_START_CELL = (9, 1)  # bottom-left room
+FOUR_ROOMS_GOAL_CELL = (1, 9)  # top-right room, the far one
+
+_RESET_OPTIONS = ("reset_cell", "goal_cell", "reset_pos", "goal")
+_MAZE_HEIGHT = 0.4  # as gymnasium-robotics' PointMaze
+
+
+class PointMazeTaskEnv(gym.Env):
+    """Episodic PointMaze with a fixed start region and goal region (the thesis's PointUMaze / Point4Rooms).
+
+    Observation ``Box (4,)`` = ``(x, y, vx, vy)``; reward 1 and termination on reaching the goal. The maze is
+    built with gymnasium-robotics' ``Maze`` and driven by its ``PointEnv`` (same physics as
+    ``PointMaze_*-v3``). :class:`PointMazeGoalTaskEnv` is the goal-env variant.
+
+    :param maze_map: gymnasium-robotics maze map (1 wall, 0 free); the default is the U-maze.
+    :param start_cell: ``(row, col)`` of the start region's centre.
+    :param goal_cell: ``(row, col)`` of the goal region's centre.
+    :param start_noise: half-width of the uniform noise added to each start coordinate.
+    :param goal_noise: half-width of the uniform noise added to each goal coordinate.
+    :param distance_threshold: success radius around the goal.
+    :param terminate_at_goal: end the episode on success.
+    :param render_mode: as PointMaze (``"rgb_array"`` needs ``MUJOCO_GL=egl`` on a headless machine).
+    :param kwargs: forwarded to gymnasium-robotics' ``PointEnv`` (e.g. ``width``/``height`` for rendering).
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array", "depth_array"], "render_fps": 50}
+
+    def __init__(
+        self,
+        maze_map: list[list[int]] | None = None,
+        start_cell: tuple[int, int] = U_MAZE_START_CELL,
+        goal_cell: tuple[int, int] = U_MAZE_GOAL_CELL,
+        start_noise: float = 0.1,
+        goal_noise: float = 0.1,
+        distance_threshold: float = 0.45,
+        terminate_at_goal: bool = True,
+        render_mode: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        maze_map = U_MAZE_MAP if maze_map is None else maze_map
+        for name, cell in (("start_cell", start_cell), ("goal_cell", goal_cell)):
+            _check_free_cell(maze_map, cell, name)
+        for name, value in (("start_noise", start_noise), ("goal_noise", goal_noise)):
+            if not 0.0 <= value < 0.5:
+                raise ValueError(f"{name} must lie in [0, 0.5) (half a cell), got {value}.")
+        if distance_threshold <= 0:
+            raise ValueError(f"distance_threshold must be positive, got {distance_threshold}.")
+        self.start_cell = (int(start_cell[0]), int(start_cell[1]))
+        self.goal_cell = (int(goal_cell[0]), int(goal_cell[1]))
+        self.start_noise = float(start_noise)
+        self.goal_noise = float(goal_noise)
+        self.distance_threshold = float(distance_threshold)
+        self.terminate_at_goal = terminate_at_goal
+        self.render_mode = render_mode
+
+        point_xml = path.join(path.dirname(point_module.__file__), "../assets/point/point.xml")
+        self.maze, xml_file = Maze.make_maze(point_xml, maze_map, 1, _MAZE_HEIGHT)
+        try:
+            self.point_env = PointEnv(
+                xml_file=xml_file,
+                render_mode=render_mode,
+                default_camera_config={"distance": 12.5 if len(maze_map) > 8 else 8.8},
+                **kwargs,
+            )
+        finally:
+            # The model is compiled; gymnasium-robotics leaves this temporary XML in /tmp forever.
+            if os.path.exists(xml_file):
+                os.remove(xml_file)
+        self._target_site_id = MujocoModelNames(self.point_env.model).site_name2id["target"]
+        self.action_space = self.point_env.action_space
+        # The ball stays inside the outer wall ring: (x, y) lies within the map; velocities are unbounded.
+        half_extent = np.array([len(maze_map[0]) / 2, len(maze_map) / 2])
+        self.goal_space = spaces.Box(-half_extent, half_extent, dtype=np.float64)
+        self.observation_space: spaces.Space = spaces.Box(
+            np.concatenate([-half_extent, [-np.inf, -np.inf]]),
+            np.concatenate([half_extent, [np.inf, np.inf]]),
+            dtype=np.float64,
+        )
+        self._start_xy = self.maze.cell_rowcol_to_xy(np.array(self.start_cell))
+        self._goal_xy = self.maze.cell_rowcol_to_xy(np.array(self.goal_cell))
+        self.goal = self._goal_xy.copy()
+        self.reset_pos = self._start_xy.copy()
+
+    # Task-relevant goals (rho_0 and rho_g*) for the reset-free / goal-selection machinery.
+    def sample_initial_goal(self, rng: np.random.Generator) -> np.ndarray:
+        """An initial state in goal space (rho_0): start-cell centre + U(-start_noise, start_noise)^2."""
+        return self._start_xy + rng.uniform(-self.start_noise, self.start_noise, size=2)
+
+    def sample_evaluation_goal(self, rng: np.random.Generator) -> np.ndarray:
+        """An evaluation goal (rho_g*): goal-cell centre + U(-goal_noise, goal_noise)^2."""
+        return self._goal_xy + rng.uniform(-self.goal_noise, self.goal_noise, size=2)
+
+    def _cell_xy(self, cell: Any, name: str, noise: float) -> np.ndarray:
+        cell = np.asarray(cell, dtype=np.int64).reshape(2)
+        _check_free_cell(self.maze.maze_map, (int(cell[0]), int(cell[1])), name)
+        return self.maze.cell_rowcol_to_xy(cell) + self.np_random.uniform(-noise, noise, size=2)
+
+    def _xy_option(self, value: Any, name: str) -> np.ndarray:
+        xy = np.asarray(value, dtype=np.float64).reshape(2).copy()
+        if not self.goal_space.contains(xy):
+            raise ValueError(f"{name} {xy} lies outside the maze {self.goal_space.low}..{self.goal_space.high}.")
+        return xy
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        """Reset to the start region with the goal in the goal region (drawn from exactly rho_0 / rho_g*).
+
+        :param options: optional overrides: ``reset_cell`` / ``goal_cell`` (``(row, col)``, noise added as
+            configured) or ``reset_pos`` / ``goal`` (exact ``(x, y)``).
+        """
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = set(options) - set(_RESET_OPTIONS)
+        if unknown:
+            raise ValueError(f"Unknown reset options {sorted(unknown)}; PointMaze tasks accept {_RESET_OPTIONS}.")
+        if options.get("goal") is not None:
+            self.goal = self._xy_option(options["goal"], "goal")
+        elif options.get("goal_cell") is not None:
+            self.goal = self._cell_xy(options["goal_cell"], "goal_cell", self.goal_noise)
+        else:
+            self.goal = self.sample_evaluation_goal(self.np_random)
+        if options.get("reset_pos") is not None:
+            self.reset_pos = self._xy_option(options["reset_pos"], "reset_pos")
+        elif options.get("reset_cell") is not None:
+            self.reset_pos = self._cell_xy(options["reset_cell"], "reset_cell", self.start_noise)
+        else:
+            self.reset_pos = self.sample_initial_goal(self.np_random)
+        self.point_env.model.site_pos[self._target_site_id] = np.append(self.goal, _MAZE_HEIGHT / 2)
+        self.point_env.init_qpos[:2] = self.reset_pos
+        point_obs, _ = self.point_env.reset(seed=seed)
+        success = self._success(point_obs)
+        return self._observation(point_obs), {"is_success": success, "success": success}
+
+    def _success(self, point_obs: np.ndarray) -> bool:
+        return bool(goal_distance(point_obs[:2], self.goal) <= self.distance_threshold)
+
+    def _observation(self, point_obs: np.ndarray) -> Any:
+        return point_obs.copy()
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
+        action = np.asarray(action, dtype=np.float64)
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"PointMaze got a non-finite action {action!r}.")
+        point_obs, _, _, _, _ = self.point_env.step(action)  # clips the action to [-1, 1]
+        success = self._success(point_obs)
+        info = {"is_success": success, "success": success}
+        return self._observation(point_obs), float(success), success and self.terminate_at_goal, False, info
+
+    def render(self) -> Any:
+        return self.point_env.render()
+
+    def close(self) -> None:
+        self.point_env.close()
+
+
+class PointMazeGoalTaskEnv(PointMazeTaskEnv):
+    """Goal-env variant of :class:`PointMazeTaskEnv` (gymnasium-robotics ``Dict`` observation).
+
+    ``observation`` = ``(x, y, vx, vy)``, ``achieved_goal`` = ``(x, y)``, ``desired_goal`` = the goal;
+    vectorised :meth:`compute_reward`. Does not terminate at the goal unless ``terminate_at_goal=True``.
+    Same parameters as :class:`PointMazeTaskEnv`.
+    """
+
+    def __init__(self, *args: Any, terminate_at_goal: bool = False, **kwargs: Any) -> None:
+        super().__init__(*args, terminate_at_goal=terminate_at_goal, **kwargs)
+        low, high = self.goal_space.low, self.goal_space.high
+        self.observation_space = spaces.Dict(
+            {
+                "observation": self.observation_space,
+                "achieved_goal": spaces.Box(low, high, dtype=np.float64),
+                "desired_goal": spaces.Box(low, high, dtype=np.float64),
+            }
+        )
+
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
+        """1.0 where ``||achieved - desired|| <= distance_threshold`` else 0.0, for batches ``(..., 2)``."""
+        return (goal_distance(achieved_goal, desired_goal) <= self.distance_threshold).astype(np.float64)
+
+    def _observation(self, point_obs: np.ndarray) -> dict[str, np.ndarray]:
+        return {
+            "observation": point_obs.copy(),
+            "achieved_goal": point_obs[:2].copy(),
+            "desired_goal": self.goal.copy(),
+        }
+
+
+def goal_distance(achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.ndarray:
+    """Euclidean distance over the last axis (one formula for ``step`` and ``compute_reward``)."""
+    diff = np.asarray(achieved_goal, dtype=np.float64) - np.asarray(desired_goal, dtype=np.float64)
+    return np.sqrt(np.sum(diff * diff, axis=-1))
+
+
+def _check_free_cell(maze_map: list[list[int]], cell: tuple[int, int], name: str) -> None:
+    row, col = int(cell[0]), int(cell[1])
+    if not (0 <= row < len(maze_map) and 0 <= col < len(maze_map[0])):
+        raise ValueError(f"{name} {tuple(cell)} is outside the {len(maze_map)}x{len(maze_map[0])} maze map.")
+    if maze_map[row][col] == 1:
+        raise ValueError(f"{name} {tuple(cell)} is a wall cell; pick a cell whose maze_map entry is 0.")
