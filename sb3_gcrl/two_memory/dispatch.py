@@ -35,6 +35,18 @@ from sb3_gcrl.two_memory.schedules import (
 )
 
 
+def _batch_size(observation: th.Tensor | dict[str, th.Tensor]) -> int:
+    if isinstance(observation, dict):
+        return int(next(iter(observation.values())).shape[0])
+    return int(observation.shape[0])
+
+
+def _select_rows(observation: th.Tensor | dict[str, th.Tensor], index: th.Tensor) -> Any:
+    if isinstance(observation, dict):
+        return {key: value[index] for key, value in observation.items()}
+    return observation[index]
+
+
 class TwoMemoryDispatchMixin:
     """Dispatch logic of a 2M policy; mix in before the SB3 policy (``class P(TwoMemoryDispatchMixin, DQNPolicy)``).
 
@@ -113,7 +125,7 @@ class TwoMemoryDispatchMixin:
             raise RuntimeError(f"record_step got {n_envs} envs but dispatch was set up for {self.acting_memory.size}")
         if np.any(self.acting_memory == UNASSIGNED):
             raise RuntimeError("record_step called for an env that has no acting memory; call assign_memories first")
-        observations = np.asarray(observations)
+        observations = self._episode_features(observations)
         actions = np.asarray(actions)
         if self.recorder is None:
             self.recorder = EpisodeRecorder(
@@ -145,7 +157,7 @@ class TwoMemoryDispatchMixin:
         memory running that env's episode. A batch whose size is not the number of training envs (e.g. a single
         observation given to ``predict``) uses the evaluation memory.
         """
-        n = observation.shape[0]
+        n = _batch_size(observation)
         if deterministic or self.acting_memory.size != n:
             memories = np.full(n, self.evaluation_memory(), dtype=np.int8)
         else:
@@ -155,12 +167,12 @@ class TwoMemoryDispatchMixin:
             rows = np.flatnonzero(memories == memory)
             if rows.size == 0:
                 continue
-            index = th.as_tensor(rows, device=observation.device)
-            memory_actions = act(observation[index], deterministic)
+            index = th.as_tensor(rows, device=self.device)
+            memory_actions = act(_select_rows(observation, index), deterministic)
             if actions is None:
                 shape = (n, *memory_actions.shape[1:])
-                actions = th.zeros(shape, dtype=memory_actions.dtype, device=observation.device)
-            actions[index] = memory_actions.to(observation.device)
+                actions = th.zeros(shape, dtype=memory_actions.dtype, device=self.device)
+            actions[index] = memory_actions.to(self.device)
         assert actions is not None
         return actions
 
@@ -172,8 +184,14 @@ class TwoMemoryDispatchMixin:
         """Actions of the parametric (RL) memory."""
         raise NotImplementedError
 
-    def update_episodic_memory(self, observations: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> None:
-        """Write one finished episode into the episodic memory (discounted returns per step)."""
+    def _episode_features(self, observations: Any) -> np.ndarray:
+        """What is recorded per step for the episodic update (default: the observation; neural 2M policies record
+        the memory key, which is smaller and also works for Dict observations)."""
+        return np.asarray(observations)
+
+    def update_episodic_memory(self, features: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> None:
+        """Write one finished episode into the episodic memory: per step the :meth:`_episode_features`, the
+        action and the discounted return."""
         raise NotImplementedError
 
     # ----------------------------------------------------------------------------------------------- saving
@@ -266,12 +284,9 @@ class TwoMemoryAlgorithmMixin:
             observations, rewards = self._last_obs, reward
         if isinstance(replay_buffer, SourceTaggedReplayBuffer):
             replay_buffer.next_sources[:] = self.policy.acting_memory
-        if isinstance(self.action_space, spaces.Box):
-            executed = self.policy.unscale_action(buffer_action)
-        else:
-            executed = buffer_action
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)  # type: ignore[misc]
-        finished = self.policy.record_step(observations, executed, rewards, dones)
+        # the episodic memory stores actions as the policy outputs them (scaled to [-1, 1] for Box spaces)
+        finished = self.policy.record_step(observations, buffer_action, rewards, dones)
         if finished:
             self._log_two_memory(replay_buffer)
 

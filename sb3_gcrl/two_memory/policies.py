@@ -1,0 +1,310 @@
+"""2M hybrid policies: an episodic memory (MFEC or CEC) and an SB3 network (DQN or SAC) behind one dispatch.
+
+The dispatch (which memory acts per episode and env, score windows, evaluation memory of Eq. 5.6) comes from
+:class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryDispatchMixin`; the memories come from :mod:`sb3_gcrl.memory`.
+Everything is in the policy's ``state_dict`` (the episodic table through ``get_extra_state``, used rows only), so
+``save``/``load`` restore the table, the network and the score windows exactly.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from stable_baselines3.common.type_aliases import Schedule
+from stable_baselines3.dqn.policies import DQNPolicy
+from stable_baselines3.sac.policies import SACPolicy
+from torch import nn
+
+from sb3_gcrl.memory import CECMemory, KeyEmbedding, MFECMemory
+from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatchMixin
+from sb3_gcrl.two_memory.schedules import PecSchedule
+
+PecSpec = PecSchedule | float | str | dict[str, Any]
+
+
+class MinAtarCNN(BaseFeaturesExtractor):
+    """The authors' MinAtar torso: Conv(C->16, 3x3) -> ReLU -> Conv(16->32, 3x3) -> ReLU -> flatten (32*6*6 = 1152).
+
+    With ``net_arch=[]`` the DQN head is the single Linear(1152 -> n_actions) of the authors' network
+    (REFERENCE.md). Observations are channel-last ``(10, 10, C)`` booleans, as MinAtar's gymnasium envs return them.
+
+    :param observation_space: ``Box((H, W, C))``.
+    """
+
+    def __init__(self, observation_space: spaces.Box) -> None:
+        if not isinstance(observation_space, spaces.Box) or len(observation_space.shape) != 3:
+            raise ValueError(
+                f"MinAtarCNN needs a channel-last Box((H, W, C)) observation space, got {observation_space}"
+            )
+        height, width, channels = observation_space.shape
+        if height < 5 or width < 5:
+            raise ValueError(f"MinAtarCNN needs images of at least 5x5, got {observation_space.shape}")
+        n_flatten = 32 * (height - 4) * (width - 4)
+        super().__init__(observation_space, features_dim=n_flatten)
+        self.cnn = nn.Sequential(
+            nn.Conv2d(channels, 16, kernel_size=3),
+            nn.ReLU(),
+            nn.Conv2d(16, 32, kernel_size=3),
+            nn.ReLU(),
+            nn.Flatten(),
+        )
+
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        return self.cnn(observations.permute(0, 3, 1, 2))
+
+
+class MinAtarDQNPolicy(DQNPolicy):
+    """Plain :class:`~stable_baselines3.dqn.policies.DQNPolicy` with the authors' MinAtar network as default
+    (``rl_zoo3 train --algo dqn`` with ``policy: sb3_gcrl.two_memory.policies.MinAtarDQNPolicy``: rl_zoo3 cannot
+    take a features extractor class in ``policy_kwargs``)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("features_extractor_class", MinAtarCNN)
+        kwargs.setdefault("net_arch", [])
+        super().__init__(*args, **kwargs)
+
+
+def _to_tensors(state: dict[str, Any], prefix: str) -> dict[str, th.Tensor]:
+    return {f"{prefix}{k}": th.as_tensor(np.asarray(v).copy()) for k, v in state.items()}
+
+
+def _from_tensors(state: dict[str, th.Tensor], prefix: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in state.items():
+        if key.startswith(prefix):
+            array = value.numpy()
+            out[key[len(prefix) :]] = array.item() if array.ndim == 0 else array
+    return out
+
+
+class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
+    """2M policy for discrete actions: an MFEC table (2M-EC) and a DQN Q-network (2M-RL), thesis Ch. 5.
+
+    MFEC keys are a seeded Gaussian random projection of the flattened observation (REFERENCE.md: 8 dims).
+
+    :param observation_space: observation space.
+    :param action_space: Discrete action space.
+    :param lr_schedule: learning rate schedule of the Q-network.
+    :param p_ec_schedule: p_ec schedule (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`).
+    :param data_sharing: update MFEC with every episode (thesis) or only with its own (2Mw/oDS).
+    :param score_window: n of Eq. 5.6.
+    :param ec_gamma: discount of the returns stored in MFEC.
+    :param ec_projection_dim: random-projection dimension of the MFEC keys (None: no projection).
+    :param ec_capacity_per_action: rows per action table (None: authors' ``1e5 / (2 * n_actions)``).
+    :param ec_n_neighbors: k of the MFEC estimate (Table 5.1: 3).
+    :param ec_seed: seed of the projection matrix (None: drawn from numpy's global generator, which SB3 seeds).
+    :param knn_backend: kNN backend of the MFEC tables (see :class:`~sb3_gcrl.memory.KNNIndex`).
+    :param kwargs: :class:`~stable_baselines3.dqn.policies.DQNPolicy` arguments (net_arch, features extractor...).
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Discrete,
+        lr_schedule: Schedule,
+        p_ec_schedule: PecSpec = 0.5,
+        data_sharing: bool = True,
+        score_window: int = 50,
+        ec_gamma: float = 0.99,
+        ec_projection_dim: int | None = 8,
+        ec_capacity_per_action: int | None = None,
+        ec_n_neighbors: int = 3,
+        ec_seed: int | None = None,
+        knn_backend: str = "auto",
+        **kwargs: Any,
+    ) -> None:
+        DQNPolicy.__init__(self, observation_space, action_space, lr_schedule, **kwargs)
+        self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma)
+        if ec_seed is None:
+            ec_seed = int(np.random.randint(2**31 - 1))
+        n_actions = int(action_space.n)
+        if ec_capacity_per_action is None:
+            ec_capacity_per_action = max(100_000 // (2 * n_actions), 1)
+        self.embedding = KeyEmbedding(observation_space, projection_dim=ec_projection_dim, seed=ec_seed)
+        self.mfec = MFECMemory(
+            self.embedding.key_dim,
+            n_actions,
+            capacity_per_action=ec_capacity_per_action,
+            n_neighbors=ec_n_neighbors,
+            knn_backend=knn_backend,  # type: ignore[arg-type]
+        )
+        self._tie_rng = np.random.default_rng(ec_seed)
+        self._two_memory_kwargs = dict(
+            p_ec_schedule=p_ec_schedule,
+            data_sharing=data_sharing,
+            score_window=score_window,
+            ec_gamma=ec_gamma,
+            ec_projection_dim=ec_projection_dim,
+            ec_capacity_per_action=ec_capacity_per_action,
+            ec_n_neighbors=ec_n_neighbors,
+            ec_seed=ec_seed,
+            knn_backend=knn_backend,
+        )
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(self._two_memory_kwargs)
+        return data
+
+    def _episodic_actions(self, observation: th.Tensor, deterministic: bool) -> th.Tensor:
+        keys = self.embedding(observation.cpu().numpy())
+        # untried actions are estimated +inf: break those ties at random while training
+        return th.as_tensor(self.mfec.greedy_actions(keys, None if deterministic else self._tie_rng))
+
+    def _parametric_actions(self, observation: th.Tensor, deterministic: bool) -> th.Tensor:
+        return self.q_net._predict(observation, deterministic=True)
+
+    def _episode_features(self, observations: Any) -> np.ndarray:
+        return self.embedding(observations)
+
+    def update_episodic_memory(self, features: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> None:
+        self.mfec.update_episode(features, actions, returns)
+
+    def _episodic_state(self) -> dict[str, th.Tensor]:
+        return {**_to_tensors(self.mfec.state_dict(), "mfec/"), **_to_tensors(self.embedding.get_state(), "embedding/")}
+
+    def _load_episodic_state(self, state: dict[str, th.Tensor]) -> None:
+        self.embedding.set_state(_from_tensors(state, "embedding/"))
+        self.mfec.load_state_dict(_from_tensors(state, "mfec/"))
+
+
+class TwoMemoryMinAtarPolicy(TwoMemoryDQNPolicy):
+    """:class:`TwoMemoryDQNPolicy` with the authors' MinAtar network (:class:`MinAtarCNN` + one linear layer)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("features_extractor_class", MinAtarCNN)
+        kwargs.setdefault("net_arch", [])
+        super().__init__(*args, **kwargs)
+
+
+class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
+    """2M policy for continuous actions: a CEC memory (2M-EC, thesis Ch. 4) and a SAC actor (2M-RL).
+
+    Not in the thesis: 2M with CEC and SAC is this package's extension of Ch. 5 to continuous actions. CEC stores
+    actions scaled to [-1, 1] (the space the SAC actor and the replay buffer use). While training, an EC-run step
+    takes a uniformly random action with probability ``ec_epsilon`` or when no stored state lies within n*d
+    (Algorithm 1), else the Eq. 4.5 sample plus Gaussian noise of std ``ec_noise_std``; evaluation takes the
+    nearest row's action.
+
+    :param observation_space: observation space (Box, or Dict for goal envs: observation + desired_goal keys).
+    :param action_space: Box action space.
+    :param lr_schedule: learning rate schedule of SAC.
+    :param p_ec_schedule: p_ec schedule.
+    :param data_sharing: update CEC with every episode or only with its own.
+    :param score_window: n of Eq. 5.6.
+    :param ec_gamma: discount of the returns stored in CEC.
+    :param ec_projection_dim: random-projection dimension of the CEC keys (None: none).
+    :param ec_capacity: CEC rows.
+    :param ec_distance_threshold: d of Table 4.4.
+    :param ec_filter_factor: n of Table 4.4.
+    :param ec_n_neighbors: k of Table 4.4.
+    :param ec_temperature: tau of Eq. 4.5.
+    :param ec_epsilon: probability of a uniformly random EC action while training.
+    :param ec_noise_std: std of the Gaussian noise on EC actions while training (in [-1, 1] units).
+    :param ec_seed: seed of the projection and of the EC sampling generator.
+    :param knn_backend: kNN backend of the CEC memory.
+    :param kwargs: :class:`~stable_baselines3.sac.policies.SACPolicy` arguments.
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Box,
+        lr_schedule: Schedule,
+        p_ec_schedule: PecSpec = 0.5,
+        data_sharing: bool = True,
+        score_window: int = 50,
+        ec_gamma: float = 0.99,
+        ec_projection_dim: int | None = None,
+        ec_capacity: int = 100_000,
+        ec_distance_threshold: float = 0.1,
+        ec_filter_factor: float = 1.0,
+        ec_n_neighbors: int = 5,
+        ec_temperature: float = 0.1,
+        ec_epsilon: float = 0.1,
+        ec_noise_std: float = 0.1,
+        ec_seed: int | None = None,
+        knn_backend: str = "auto",
+        **kwargs: Any,
+    ) -> None:
+        SACPolicy.__init__(self, observation_space, action_space, lr_schedule, **kwargs)
+        self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma)
+        if not 0.0 <= ec_epsilon <= 1.0:
+            raise ValueError(f"ec_epsilon must be in [0, 1], got {ec_epsilon}")
+        if ec_noise_std < 0:
+            raise ValueError(f"ec_noise_std must be >= 0, got {ec_noise_std}")
+        if ec_seed is None:
+            ec_seed = int(np.random.randint(2**31 - 1))
+        self.ec_epsilon = float(ec_epsilon)
+        self.ec_noise_std = float(ec_noise_std)
+        self.embedding = KeyEmbedding(observation_space, projection_dim=ec_projection_dim, seed=ec_seed)
+        self.cec = CECMemory(
+            self.embedding.key_dim,
+            int(np.prod(action_space.shape)),
+            capacity=ec_capacity,
+            distance_threshold=ec_distance_threshold,
+            filter_factor=ec_filter_factor,
+            n_neighbors=ec_n_neighbors,
+            temperature=ec_temperature,
+            knn_backend=knn_backend,  # type: ignore[arg-type]
+        )
+        self._ec_rng = np.random.default_rng(ec_seed)
+        self._two_memory_kwargs = dict(
+            p_ec_schedule=p_ec_schedule,
+            data_sharing=data_sharing,
+            score_window=score_window,
+            ec_gamma=ec_gamma,
+            ec_projection_dim=ec_projection_dim,
+            ec_capacity=ec_capacity,
+            ec_distance_threshold=ec_distance_threshold,
+            ec_filter_factor=ec_filter_factor,
+            ec_n_neighbors=ec_n_neighbors,
+            ec_temperature=ec_temperature,
+            ec_epsilon=ec_epsilon,
+            ec_noise_std=ec_noise_std,
+            ec_seed=ec_seed,
+            knn_backend=knn_backend,
+        )
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(self._two_memory_kwargs)
+        return data
+
+    def _numpy_obs(self, observation: th.Tensor | dict[str, th.Tensor]) -> np.ndarray | dict[str, np.ndarray]:
+        if isinstance(observation, dict):
+            return {k: v.cpu().numpy() for k, v in observation.items()}
+        return observation.cpu().numpy()
+
+    def _episodic_actions(self, observation: th.Tensor, deterministic: bool) -> th.Tensor:
+        keys = self.embedding(self._numpy_obs(observation))
+        if deterministic:
+            actions, found = self.cec.greedy_actions(keys)
+        else:
+            actions, found = self.cec.select_actions(keys, self._ec_rng)
+            actions = np.clip(actions + self.ec_noise_std * self._ec_rng.standard_normal(actions.shape), -1, 1)
+        random_rows = ~found
+        if not deterministic:
+            random_rows |= self._ec_rng.random(len(keys)) < self.ec_epsilon
+        actions[random_rows] = self._ec_rng.uniform(-1.0, 1.0, size=(int(random_rows.sum()), actions.shape[1]))
+        return th.as_tensor(actions.reshape((-1, *self.action_space.shape)), dtype=th.float32)
+
+    def _parametric_actions(self, observation: th.Tensor, deterministic: bool) -> th.Tensor:
+        return self.actor(observation, deterministic=deterministic)
+
+    def _episode_features(self, observations: Any) -> np.ndarray:
+        return self.embedding(observations)
+
+    def update_episodic_memory(self, features: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> None:
+        self.cec.update_episode(features, actions.reshape(len(actions), -1), returns)
+
+    def _episodic_state(self) -> dict[str, th.Tensor]:
+        return {**_to_tensors(self.cec.state_dict(), "cec/"), **_to_tensors(self.embedding.get_state(), "embedding/")}
+
+    def _load_episodic_state(self, state: dict[str, th.Tensor]) -> None:
+        self.embedding.set_state(_from_tensors(state, "embedding/"))
+        self.cec.load_state_dict(_from_tensors(state, "cec/"))
