@@ -1,0 +1,17 @@
+"""Callbacks for reset-free training: mode switch, intervention/goal logging, replay-buffer visitation."""
+
+from sb3_gcrl.callbacks.reset_free import ResetFreeCallback
+from sb3_gcrl.callbacks.visitation import (
+    VisitationCallback,
+    plot_visitation_heatmap,
+    task_relevant_fraction,
+    visitation_histogram,
+)
+
+__all__ = [
+    "ResetFreeCallback",
+    "VisitationCallback",
+    "plot_visitation_heatmap",
+    "task_relevant_fraction",
+    "visitation_histogram",
+]

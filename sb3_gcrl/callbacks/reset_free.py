@@ -1,0 +1,71 @@
+"""Callback that switches the training env to reset-free mode and logs interventions and goal statistics.
+
+The reset-free wrappers (:mod:`sb3_gcrl.wrappers`) start episodic, because RL-Zoo builds the eval env with the same
+``env_wrapper`` as the train env and evaluation must stay episodic (issue 3, item 6). This callback, put in the
+``callback`` list of the config, calls ``enable_reset_free()`` on the *training* env only, at the start of
+``learn``; the eval env is never touched and keeps resetting to rho_0 with goals from rho_g* for T_eval steps.
+
+Logged every ``log_freq`` calls (``reset_free/`` prefix): ``interventions`` (physical resets, summed over envs),
+``terminal_interventions``, per goal kind (``forward``, ``back``, ``explore``, ...) the number of commanded goals
+and the fraction reached, and the share of Go/Explore steps.
+"""
+
+from __future__ import annotations
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+
+class ResetFreeCallback(BaseCallback):
+    """Enable reset-free mode on the training env; log interventions and commanded-goal statistics.
+
+    :param log_freq: log every ``log_freq`` calls of ``on_step`` (i.e. ``log_freq * n_envs`` env steps).
+    :param verbose: verbosity.
+    """
+
+    def __init__(self, log_freq: int = 1000, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        if log_freq < 1:
+            raise ValueError(f"log_freq must be >= 1, got {log_freq}")
+        self.log_freq = log_freq
+
+    def _on_training_start(self) -> None:
+        env = self.training_env
+        if not env.has_attr("enable_reset_free"):
+            raise TypeError(
+                "ResetFreeCallback: the training env has no reset-free wrapper; wrap it in "
+                "sb3_gcrl.wrappers.ResetFreeWrapper (and GoExploreWrapper/GoalCommandWrapper), e.g. with env_wrapper "
+                "in the RL-Zoo YAML"
+            )
+        env.env_method("enable_reset_free")
+        if self.verbose > 0:
+            print(f"ResetFreeCallback: reset-free mode on for {env.num_envs} training env(s)")
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.log_freq == 0:
+            self.log_statistics()
+        return True
+
+    def log_statistics(self) -> None:
+        """Record the current statistics in the SB3 logger (also called at the end of training)."""
+        env = self.training_env
+        for name in ("interventions", "terminal_interventions"):
+            if env.has_attr(name):
+                self.logger.record(f"reset_free/{name}", sum(env.get_attr(name)))
+        if env.has_attr("goal_counts"):
+            counts: dict[str, int] = {}
+            reached: dict[str, int] = {}
+            for c, r in zip(env.get_attr("goal_counts"), env.get_attr("goal_reached")):
+                for kind, value in c.items():
+                    counts[kind] = counts.get(kind, 0) + value
+                for kind, value in r.items():
+                    reached[kind] = reached.get(kind, 0) + value
+            for kind, value in counts.items():
+                self.logger.record(f"reset_free/goals_{kind}", value)
+                self.logger.record(f"reset_free/reached_{kind}", reached.get(kind, 0) / max(value, 1))
+        if env.has_attr("phase_steps_total"):
+            go = sum(p["go"] for p in env.get_attr("phase_steps_total"))
+            explore = sum(p["explore"] for p in env.get_attr("phase_steps_total"))
+            self.logger.record("reset_free/explore_step_share", explore / max(go + explore, 1))
+
+    def _on_training_end(self) -> None:
+        self.log_statistics()

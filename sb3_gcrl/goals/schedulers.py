@@ -1,0 +1,202 @@
+"""Goal schedulers: small objects a goal-commanding wrapper asks for a goal at each episode/phase start.
+
+A scheduler answers :meth:`GoalScheduler.next_goal` (and labels the goal with :attr:`GoalScheduler.kind`) and
+may learn from every achieved goal through :meth:`GoalScheduler.observe`. Schedulers of the thesis:
+
+* :class:`EnvDefaultScheduler`: keep the goal the env proposes (naive reset-free training);
+* :class:`EvaluationGoalScheduler`: always a goal from rho_g* (MoReFree with alpha = 1 in exploration);
+* :class:`UniformVisitedScheduler`: uniform over visited (binned) achieved goals;
+* :class:`NoveltyScheduler`: count-based novelty over visited bins, thesis Eq. 6.5 (Ch. 6, also the
+  exploratory goal distribution rho_E of our MoReFree port, replacing PEG's world-model planner);
+* :class:`BackAndForthScheduler`: thesis Algorithm 3, w.p. alpha the pair (g* ~ rho_g*, then g0 ~ rho_0),
+  else an exploratory goal from a pluggable scheduler.
+
+:func:`make_scheduler` builds any of them from a name and keyword arguments (the form an RL-Zoo YAML can hold).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from sb3_gcrl.goals.goal_space import BinnedGoalSpace
+from sb3_gcrl.goals.task_goals import TaskRelevantGoals
+
+
+class GoalScheduler(ABC):
+    """Base class: chooses the commanded goal of each Go phase / segment.
+
+    :attr kind: label of the goal last returned (e.g. ``"forward"``, ``"back"``, ``"explore"``), used for logging.
+    """
+
+    kind: str = "goal"
+
+    @abstractmethod
+    def next_goal(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
+        """Return the next goal to command.
+
+        :param obs: current Dict observation (its ``desired_goal`` is the env's own goal).
+        :param rng: random generator owned by the wrapper (seeded with the env).
+        :return: goal, shape ``(goal_dim,)``.
+        """
+
+    def observe(self, achieved_goal: np.ndarray) -> None:  # noqa: B027 (optional hook)
+        """Learn from an achieved goal (called after every env step and reset). No-op by default.
+
+        :param achieved_goal: shape ``(goal_dim,)``.
+        """
+
+    def reset_pending(self) -> None:  # noqa: B027 (optional hook)
+        """Forget any goal sequence in progress (called after a physical reset). No-op by default."""
+
+
+class EnvDefaultScheduler(GoalScheduler):
+    """Command the goal the env itself proposes (``obs["desired_goal"]``): no scheduling."""
+
+    kind = "env"
+
+    def next_goal(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
+        return np.array(obs["desired_goal"], dtype=np.float64)
+
+
+class EvaluationGoalScheduler(GoalScheduler):
+    """Always command an evaluation goal g* ~ rho_g*.
+
+    :param task_goals: the env's task-relevant goals.
+    """
+
+    kind = "forward"
+
+    def __init__(self, task_goals: TaskRelevantGoals) -> None:
+        self.task_goals = task_goals
+
+    def next_goal(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
+        return self.task_goals.sample("evaluation", rng)[0]
+
+
+class UniformVisitedScheduler(GoalScheduler):
+    """Uniform over visited bins of the goal space (each achieved goal is recorded).
+
+    :param goal_space: the binned visited-goal space (shared objects are fine, e.g. with a logger).
+    """
+
+    kind = "explore"
+
+    def __init__(self, goal_space: BinnedGoalSpace) -> None:
+        self.goal_space = goal_space
+
+    def observe(self, achieved_goal: np.ndarray) -> None:
+        self.goal_space.add(achieved_goal)
+
+    def next_goal(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
+        if self.goal_space.n_visited == 0:
+            self.goal_space.add(obs["achieved_goal"])
+        return self.goal_space.sample_uniform(rng)[0]
+
+
+class NoveltyScheduler(UniformVisitedScheduler):
+    """Count-based novelty over visited bins, thesis Eq. 6.5: p(g) = (1/n(g))^tau / sum_g' (1/n(g'))^tau.
+
+    :param goal_space: the binned visited-goal space.
+    :param tau: temperature of Eq. 6.5 (thesis Table 6.3 uses tau in {0, ..., 10}; 1 by default).
+    """
+
+    def __init__(self, goal_space: BinnedGoalSpace, tau: float = 1.0) -> None:
+        super().__init__(goal_space)
+        if not np.isfinite(tau) or tau < 0:
+            raise ValueError(f"tau must be a finite number >= 0, got {tau}")
+        self.tau = float(tau)
+
+    def next_goal(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
+        if self.goal_space.n_visited == 0:
+            self.goal_space.add(obs["achieved_goal"])
+        return self.goal_space.sample_novel(self.tau, rng)[0]
+
+
+class BackAndForthScheduler(GoalScheduler):
+    """Back-and-Forth Go-Explore goal selection, thesis Algorithm 3.
+
+    With probability ``alpha`` the pair (g*, g0) ~ (rho_g*, rho_0) is drawn and commanded in two consecutive
+    Go phases ("forward" then "back"); otherwise one exploratory goal from ``exploratory`` ("explore").
+
+    :param task_goals: the env's task-relevant goals.
+    :param exploratory: scheduler of exploratory goals rho_E (thesis: PEG; here e.g. :class:`NoveltyScheduler`).
+    :param alpha: probability of a forward/back pair (thesis: 0.2 for all tasks, Section 3.7.3).
+    """
+
+    def __init__(self, task_goals: TaskRelevantGoals, exploratory: GoalScheduler, alpha: float = 0.2) -> None:
+        if not 0.0 <= alpha <= 1.0:
+            raise ValueError(f"alpha must be in [0, 1], got {alpha}")
+        self.task_goals = task_goals
+        self.exploratory = exploratory
+        self.alpha = float(alpha)
+        self.kind = "explore"
+        self._pending_back: np.ndarray | None = None
+
+    def observe(self, achieved_goal: np.ndarray) -> None:
+        self.exploratory.observe(achieved_goal)
+
+    def reset_pending(self) -> None:
+        self._pending_back = None
+        self.exploratory.reset_pending()
+
+    def next_goal(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
+        if self._pending_back is not None:
+            goal, self._pending_back = self._pending_back, None
+            self.kind = "back"
+            return goal
+        if rng.random() < self.alpha:
+            self._pending_back = self.task_goals.sample("initial", rng)[0]
+            self.kind = "forward"
+            return self.task_goals.sample("evaluation", rng)[0]
+        goal = self.exploratory.next_goal(obs, rng)
+        self.kind = "explore"
+        return goal
+
+
+#: scheduler names accepted by :func:`make_scheduler`
+SCHEDULERS = ("env_default", "evaluation", "uniform_visited", "novelty", "back_and_forth")
+
+
+def make_scheduler(
+    name: str,
+    task_goals: TaskRelevantGoals,
+    goal_low: np.ndarray | list[float] | None = None,
+    goal_high: np.ndarray | list[float] | None = None,
+    n_bins: int | list[int] = 10,
+    within_bin: str = "visited",
+    tau: float = 1.0,
+    alpha: float = 0.2,
+    exploratory: str = "novelty",
+) -> GoalScheduler:
+    """Build a scheduler from plain values (what an RL-Zoo YAML ``env_wrapper`` entry can hold).
+
+    :param name: one of :data:`SCHEDULERS`.
+    :param task_goals: the env's task-relevant goals (rho_0, rho_g*).
+    :param goal_low: lower bounds of the binned goal space (visited-goal schedulers only).
+    :param goal_high: upper bounds of the binned goal space (visited-goal schedulers only).
+    :param n_bins: bins per goal dimension.
+    :param within_bin: ``"uniform"`` (thesis Ch. 6) or ``"visited"`` (a recorded achieved goal of the bin).
+    :param tau: temperature of Eq. 6.5 (``novelty``).
+    :param alpha: probability of a forward/back pair (``back_and_forth``).
+    :param exploratory: name of the exploratory scheduler inside ``back_and_forth``.
+    :return: the scheduler.
+    """
+    if name == "env_default":
+        return EnvDefaultScheduler()
+    if name == "evaluation":
+        return EvaluationGoalScheduler(task_goals)
+    if name in ("uniform_visited", "novelty"):
+        if goal_low is None or goal_high is None:
+            raise ValueError(
+                f"scheduler {name!r} bins the visited goals: pass goal_low and goal_high (goal-space bounds)"
+            )
+        space = BinnedGoalSpace(goal_low, goal_high, n_bins, within_bin)  # type: ignore[arg-type]
+        return NoveltyScheduler(space, tau) if name == "novelty" else UniformVisitedScheduler(space)
+    if name == "back_and_forth":
+        if exploratory == "back_and_forth":
+            raise ValueError("the exploratory scheduler of back_and_forth cannot itself be back_and_forth")
+        inner = make_scheduler(exploratory, task_goals, goal_low, goal_high, n_bins, within_bin, tau)
+        return BackAndForthScheduler(task_goals, inner, alpha)
+    raise ValueError(f"Unknown goal scheduler {name!r}; choose one of {list(SCHEDULERS)}")

@@ -1,0 +1,101 @@
+"""Task-relevant goal distributions rho_0 (initial states) and rho_g* (evaluation goals), thesis Section 3.4.
+
+MoReFree conditions exploration (Back-and-Forth Go-Explore, Algorithm 3) and policy training (Section 3.4.2)
+on two task-relevant goal distributions:
+
+* rho_0: initial states of the task, expressed in goal space (the "back" goals that emulate a reset);
+* rho_g*: the evaluation goals (the "forward" goals).
+
+Contract (DESIGN.md, contract 1): an env *declares* them with two methods on its unwrapped env,
+``sample_initial_goal(rng) -> np.ndarray`` and ``sample_evaluation_goal(rng) -> np.ndarray``. Any other
+goal env works unchanged: the distributions are *learned* from what the env shows at its own resets
+(``achieved_goal`` at reset is a sample of rho_0, ``desired_goal`` at reset a sample of rho_g*), and sampled
+uniformly from the recorded resets.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import gymnasium as gym
+import numpy as np
+
+GoalKind = Literal["initial", "evaluation"]
+
+#: names of the methods a goal env declares to expose its task-relevant goals
+INITIAL_GOAL_METHOD = "sample_initial_goal"
+EVALUATION_GOAL_METHOD = "sample_evaluation_goal"
+
+
+def declares_task_goals(env: gym.Env) -> bool:
+    """Whether ``env.unwrapped`` declares both task-relevant goal samplers (DESIGN.md contract 1).
+
+    :param env: any gymnasium env (wrapped or not).
+    :return: True when ``sample_initial_goal`` and ``sample_evaluation_goal`` are both callable.
+    """
+    unwrapped = env.unwrapped
+    return callable(getattr(unwrapped, INITIAL_GOAL_METHOD, None)) and callable(
+        getattr(unwrapped, EVALUATION_GOAL_METHOD, None)
+    )
+
+
+class TaskRelevantGoals:
+    """Sampler of rho_0 and rho_g*, declared by the env or learned from its resets.
+
+    Learned samples are kept in preallocated ring buffers of ``capacity`` rows; once full, the oldest
+    reset is overwritten (so a non-stationary reset distribution is tracked).
+
+    :param env: the goal env (its ``unwrapped`` is checked for the two sampler methods).
+    :param goal_dim: dimension of the goal space (``achieved_goal`` shape[0]).
+    :param capacity: number of learned resets remembered (only used when the env does not declare samplers).
+    """
+
+    def __init__(self, env: gym.Env, goal_dim: int, capacity: int = 10_000) -> None:
+        if capacity < 1:
+            raise ValueError(f"capacity must be >= 1, got {capacity}")
+        self._unwrapped = env.unwrapped
+        self.declared = declares_task_goals(env)
+        self.goal_dim = goal_dim
+        self.capacity = capacity
+        self._initial = np.zeros((capacity, goal_dim), dtype=np.float64)
+        self._evaluation = np.zeros((capacity, goal_dim), dtype=np.float64)
+        self._n_recorded = 0
+
+    @property
+    def n_recorded(self) -> int:
+        """Number of resets recorded so far (learned mode)."""
+        return self._n_recorded
+
+    def record_reset(self, obs: dict[str, np.ndarray]) -> None:
+        """Record the goals an env shows at one of its own (physical) resets.
+
+        :param obs: the Dict observation returned by the env's ``reset``.
+        """
+        row = self._n_recorded % self.capacity
+        self._initial[row] = obs["achieved_goal"]
+        self._evaluation[row] = obs["desired_goal"]
+        self._n_recorded += 1
+
+    def sample(self, kind: GoalKind, rng: np.random.Generator, n: int = 1) -> np.ndarray:
+        """Draw ``n`` goals from rho_0 (``kind="initial"``) or rho_g* (``kind="evaluation"``).
+
+        :param kind: ``"initial"`` or ``"evaluation"``.
+        :param rng: random generator (used for learned distributions and passed to declared samplers).
+        :param n: number of goals.
+        :return: array of shape ``(n, goal_dim)``.
+        """
+        if kind not in ("initial", "evaluation"):
+            raise ValueError(f"kind must be 'initial' or 'evaluation', got {kind!r}")
+        if self.declared:
+            method = getattr(self._unwrapped, INITIAL_GOAL_METHOD if kind == "initial" else EVALUATION_GOAL_METHOD)
+            out = np.empty((n, self.goal_dim), dtype=np.float64)
+            for i in range(n):
+                out[i] = method(rng)
+            return out
+        if self._n_recorded == 0:
+            raise RuntimeError(
+                "No task-relevant goals known yet: the env does not declare sample_initial_goal/"
+                "sample_evaluation_goal, so they are learned from its resets; call reset() first."
+            )
+        rows = rng.integers(0, min(self._n_recorded, self.capacity), size=n)
+        return (self._initial if kind == "initial" else self._evaluation)[rows].copy()

@@ -1,0 +1,17 @@
+"""HER replay buffers: executed-action storage and task-relevant relabeling (thesis Section 3.4.2)."""
+
+from sb3_gcrl.her.executed_action import (
+    ExecutedActionDictReplayBuffer,
+    ExecutedActionHerReplayBuffer,
+    ExecutedActionMixin,
+    ExecutedActionReplayBuffer,
+)
+from sb3_gcrl.her.task_relevant import TaskRelevantHerReplayBuffer
+
+__all__ = [
+    "ExecutedActionDictReplayBuffer",
+    "ExecutedActionHerReplayBuffer",
+    "ExecutedActionMixin",
+    "ExecutedActionReplayBuffer",
+    "TaskRelevantHerReplayBuffer",
+]

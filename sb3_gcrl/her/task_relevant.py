@@ -1,0 +1,72 @@
+"""Task-relevant HER relabeling, thesis Section 3.4.2 ("Learning to Achieve Relevant Goals in Imagination").
+
+MoReFree trains its goal-conditioned policy on goals drawn from rho_g* with probability alpha/2, from rho_0 with
+probability alpha/2 and from replayed states with probability 1 - alpha (Algorithm 2, line 14). The thesis does
+this with imagined rollouts of a world model; in this model-free port the same bias is put into HER relabeling:
+of the relabeled part of each batch (``her_ratio = n_sampled_goal / (n_sampled_goal + 1)``), a fraction alpha/2
+gets an evaluation goal, alpha/2 an initial-state goal, and the rest the standard strategy (``future`` by
+default). Rewards are recomputed with the env's ``compute_reward`` as in :class:`HerReplayBuffer`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_gcrl.her.executed_action import ExecutedActionHerReplayBuffer
+
+#: the env method (provided by :class:`sb3_gcrl.wrappers.GoalCommandWrapper`) serving rho_0 / rho_g* samples
+TASK_GOALS_METHOD = "sample_task_goals"
+
+
+class TaskRelevantHerReplayBuffer(ExecutedActionHerReplayBuffer):
+    """HER buffer relabeling toward task-relevant goals (rho_g*, rho_0) w.p. alpha; stores executed actions.
+
+    The env must be wrapped in :class:`~sb3_gcrl.wrappers.GoalCommandWrapper` (or :class:`GoExploreWrapper`),
+    which serves the task-relevant goals. From an RL-Zoo YAML (where ``replay_buffer_class`` is ``eval``-ed and a
+    dotted path fails) write ``replay_buffer_class: "__import__('sb3_gcrl.her').her.TaskRelevantHerReplayBuffer"``.
+
+    :param buffer_size: see :class:`HerReplayBuffer`.
+    :param observation_space: see :class:`HerReplayBuffer`.
+    :param action_space: see :class:`HerReplayBuffer`.
+    :param env: the training VecEnv (serves ``compute_reward`` and the task-relevant goals).
+    :param task_goal_ratio: alpha of Section 3.4.2 (thesis: 0.2); 0 gives standard HER (with executed actions).
+    :param kwargs: the other :class:`HerReplayBuffer` arguments (``n_sampled_goal``, ``goal_selection_strategy``...).
+    """
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Dict,
+        action_space: spaces.Space,
+        env: VecEnv,
+        task_goal_ratio: float = 0.2,
+        **kwargs: Any,
+    ) -> None:
+        if not 0.0 <= task_goal_ratio <= 1.0:
+            raise ValueError(f"task_goal_ratio (alpha) must be in [0, 1], got {task_goal_ratio}")
+        super().__init__(buffer_size, observation_space, action_space, env, **kwargs)
+        self.task_goal_ratio = float(task_goal_ratio)
+        if self.task_goal_ratio > 0 and env is not None and not env.has_attr(TASK_GOALS_METHOD):
+            raise TypeError(
+                "TaskRelevantHerReplayBuffer needs the env to serve task-relevant goals: wrap it in "
+                "sb3_gcrl.wrappers.GoalCommandWrapper or GoExploreWrapper (env_wrapper in an RL-Zoo YAML), "
+                "or set task_goal_ratio=0."
+            )
+
+    def _sample_goals(self, batch_indices: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
+        goals = super()._sample_goals(batch_indices, env_indices)
+        if self.task_goal_ratio == 0.0:
+            return goals
+        # one uniform per relabeled transition: [0, a/2) -> rho_g*, [a/2, a) -> rho_0, [a, 1) -> standard strategy
+        u = np.random.random(len(goals))
+        half = self.task_goal_ratio / 2.0
+        for kind, mask in (("evaluation", u < half), ("initial", (u >= half) & (u < self.task_goal_ratio))):
+            n = int(mask.sum())
+            if n > 0:
+                assert self.env is not None, "call set_env() after loading the buffer"
+                goals[mask] = self.env.env_method(TASK_GOALS_METHOD, kind, n, indices=[0])[0]
+        return goals

@@ -1,0 +1,75 @@
+"""Goal-env checks shared by the wrappers, and an ``info["is_success"]`` adapter.
+
+Goal envs follow gymnasium-robotics (DESIGN.md contract 1): a Dict observation with ``observation``,
+``achieved_goal`` and ``desired_goal``, a vectorised ``compute_reward(achieved, desired, info)``, and
+``info["is_success"]`` (the only key SB3/RL-Zoo read for success rates).
+"""
+
+from __future__ import annotations
+
+from typing import Any, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+GOAL_KEYS = ("observation", "achieved_goal", "desired_goal")
+
+
+def check_goal_env(env: gym.Env, wrapper_name: str) -> None:
+    """Raise a ``TypeError`` naming the fix when ``env`` is not a gymnasium-robotics style goal env.
+
+    :param env: the env about to be wrapped.
+    :param wrapper_name: name of the wrapper, used in the message.
+    """
+    space = env.observation_space
+    if not isinstance(space, spaces.Dict) or any(key not in space.spaces for key in GOAL_KEYS):
+        raise TypeError(
+            f"{wrapper_name} needs a goal env: a Dict observation space with keys {GOAL_KEYS} (gymnasium-robotics "
+            f"style), got {space}. Use a goal env such as PointMaze_UMaze-v3 or a GCRL/*Goal-v0 env."
+        )
+    if space["achieved_goal"].shape != space["desired_goal"].shape:
+        raise TypeError(
+            f"{wrapper_name}: achieved_goal {space['achieved_goal'].shape} and desired_goal "
+            f"{space['desired_goal'].shape} must have the same shape"
+        )
+    if not callable(getattr(env.unwrapped, "compute_reward", None)):
+        raise TypeError(
+            f"{wrapper_name} needs env.unwrapped.compute_reward(achieved_goal, desired_goal, info) (vectorised) to "
+            "recompute rewards for commanded goals; add it to the env."
+        )
+
+
+class IsSuccessWrapper(gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray]):
+    """Provide ``info["is_success"]`` for goal envs that report success under another key.
+
+    gymnasium-robotics' PointMaze/AntMaze report ``info["success"]``; SB3's ``Monitor``/``EvalCallback`` and
+    RL-Zoo only read ``info["is_success"]``. When ``source_key`` is missing from ``info`` the success is
+    computed from the distance between achieved and desired goal.
+
+    :param env: goal env.
+    :param source_key: info key to copy (``"success"`` for gymnasium-robotics mazes).
+    :param success_distance: fallback threshold on ``||achieved_goal - desired_goal||`` when ``source_key`` is
+        absent; ``None`` raises instead.
+    """
+
+    def __init__(self, env: gym.Env, source_key: str = "success", success_distance: float | None = None) -> None:
+        check_goal_env(env, type(self).__name__)
+        super().__init__(env)
+        self.source_key = source_key
+        self.success_distance = success_distance
+
+    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if "is_success" not in info:
+            if self.source_key in info:
+                info["is_success"] = bool(info[self.source_key])
+            elif self.success_distance is not None:
+                distance = np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"])
+                info["is_success"] = bool(distance <= self.success_distance)
+            else:
+                raise KeyError(
+                    f"info has neither 'is_success' nor {self.source_key!r}: pass source_key=<the env's success key> "
+                    "or success_distance=<goal threshold> to IsSuccessWrapper"
+                )
+        return obs, reward, terminated, truncated, info

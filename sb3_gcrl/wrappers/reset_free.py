@@ -1,0 +1,118 @@
+"""Reset-free training wrapper (thesis Ch. 3, Section 3.7.1; EARL/IBC protocol).
+
+In reset-free training the physical env is reset only every ``hard_reset_every`` steps (EARL: 1e5-2e5) and
+at true terminal states the agent cannot leave; every physical reset is an *intervention* and is counted.
+The agent (SB3) still sees finite *segments*: a segment ends with ``truncated=True`` (the ``TimeLimit``
+semantics SB3 turns into ``info["TimeLimit.truncated"]``, so the value target bootstraps), never with a fake
+terminal, and the next ``reset()`` returns the *current* state instead of resetting.
+
+The wrapper has two modes:
+
+* ``"episodic"`` (the default, at construction): every ``reset()`` is physical, episodes last at most
+  ``eval_horizon`` steps. This is what evaluation and ``rl_zoo3 enjoy`` see. RL-Zoo wraps its eval env with the
+  same ``env_wrapper`` as the train env, so the wrapper must be episodic unless told otherwise.
+* ``"reset_free"``: switched on for the *training* env only, by :meth:`enable_reset_free`, which
+  :class:`sb3_gcrl.callbacks.ResetFreeCallback` calls at the start of ``learn``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal, SupportsFloat
+
+import gymnasium as gym
+from gymnasium.wrappers import TimeLimit
+
+Mode = Literal["episodic", "reset_free"]
+
+#: EARL's default interval between hard resets (tabletop, sawyer door, IBC PointUMaze)
+EARL_HARD_RESET_EVERY = 200_000
+
+
+class ResetFreeWrapper(gym.Wrapper):
+    """Physical resets every ``hard_reset_every`` steps; SB3 sees truncated segments in between.
+
+    :param env: the env to train without resets (any gymnasium env; goal envs for the goal wrappers on top).
+    :param hard_reset_every: env steps between two physical resets (interventions) in reset-free mode.
+    :param segment_length: length of the segments SB3 sees in reset-free mode (``None``: segments end only at
+        hard resets, or when an outer wrapper truncates, e.g. :class:`GoExploreWrapper` after each Go-Explore).
+    :param eval_horizon: episode length in episodic mode (evaluation), e.g. 100 for PointUMaze; ``None`` keeps
+        the inner env's own time limit.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env,
+        hard_reset_every: int = EARL_HARD_RESET_EVERY,
+        segment_length: int | None = None,
+        eval_horizon: int | None = None,
+    ) -> None:
+        super().__init__(env)
+        for name, value in (
+            ("hard_reset_every", hard_reset_every),
+            ("segment_length", segment_length),
+            ("eval_horizon", eval_horizon),
+        ):
+            if value is not None and (int(value) != value or value < 1):
+                raise ValueError(f"{name} must be a positive integer, got {value}")
+        self.hard_reset_every = int(hard_reset_every)
+        self.segment_length = None if segment_length is None else int(segment_length)
+        self.eval_horizon = None if eval_horizon is None else int(eval_horizon)
+        self.mode: Mode = "episodic"
+        #: physical resets so far (every reset in episodic mode, hard/terminal resets in reset-free mode)
+        self.interventions = 0
+        #: physical resets caused by a terminal state the agent could not leave
+        self.terminal_interventions = 0
+        self.total_steps = 0
+        self._steps_since_reset = 0
+        self._segment_steps = 0
+        self._needs_physical_reset = True
+        self._last_obs: Any = None
+        self._last_info: dict[str, Any] = {}
+
+    def enable_reset_free(self) -> None:
+        """Switch to reset-free mode (training env only) and lift inner time limits to ``hard_reset_every``.
+
+        Inner ``TimeLimit`` wrappers (e.g. PointMaze's 300 steps) would otherwise end the physical episode early;
+        their limit becomes the hard-reset interval so that they coincide with the hard reset.
+        """
+        self.mode = "reset_free"
+        env = self.env
+        while isinstance(env, gym.Wrapper):
+            if isinstance(env, TimeLimit):
+                env._max_episode_steps = max(env._max_episode_steps, self.hard_reset_every)
+            env = env.env
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        if self.mode == "episodic" or self._needs_physical_reset or seed is not None or options:
+            obs, info = self.env.reset(seed=seed, options=options)
+            self.interventions += 1
+            self._steps_since_reset = 0
+            self._needs_physical_reset = False
+            info = dict(info, physical_reset=True)
+        else:
+            obs, info = self._last_obs, dict(self._last_info, physical_reset=False)
+        self._segment_steps = 0
+        self._last_obs, self._last_info = obs, info
+        return obs, info
+
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.total_steps += 1
+        self._steps_since_reset += 1
+        self._segment_steps += 1
+        if self.mode == "episodic":
+            if self.eval_horizon is not None and self._segment_steps >= self.eval_horizon:
+                truncated = True
+            return obs, reward, terminated, truncated, info
+        if terminated:
+            # a true terminal state: the episode really ends and a physical reset (intervention) follows
+            self.terminal_interventions += 1
+            self._needs_physical_reset = True
+        elif truncated or self._steps_since_reset >= self.hard_reset_every:
+            # inner time limit (lifted to hard_reset_every) or hard reset due: cut the segment, reset next time
+            self._needs_physical_reset = True
+            truncated = True
+        elif self.segment_length is not None and self._segment_steps >= self.segment_length:
+            truncated = True
+        self._last_obs, self._last_info = obs, info
+        return obs, reward, terminated, truncated, info
