@@ -190,6 +190,10 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
             # Limited robot workspace: the gripper's target never leaves the walled arena.
             np.clip(self.data.mocap_pos, self._mocap_low, self._mocap_high, out=self.data.mocap_pos)
 
+    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = super().step(action)
+        return obs, float(reward), terminated, truncated, info  # Fetch returns a numpy float32 reward
+
     def _reset_sim(self) -> bool:
         mujoco.mj_resetData(self.model, self.data)
         self.data.time = self.initial_time

@@ -1,0 +1,432 @@
+"""Tests of the reset-free task suite (sb3_gcrl/envs/reset_free, thesis Section 3.7.1)."""
+
+from __future__ import annotations
+
+import glob
+import importlib.util
+import os
+import pickle
+import sys
+import tempfile
+import warnings
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import sb3_gcrl  # noqa: F401  (registers the GCRL/ ids)
+from sb3_gcrl.envs.reset_free import RESET_FREE_ENV_IDS, RESET_FREE_TASKS, register_reset_free_envs
+from sb3_gcrl.envs.reset_free import ant as ant_module
+from sb3_gcrl.envs.reset_free import fetch as fetch_module
+from sb3_gcrl.envs.reset_free import sawyer_door as door_module
+from sb3_gcrl.envs.reset_free import tabletop as tabletop_module
+from sb3_gcrl.envs.reset_free.tabletop import TabletopEnv
+
+HAS_METAWORLD = importlib.util.find_spec("metaworld") is not None
+needs_metaworld = pytest.mark.skipif(not HAS_METAWORLD, reason="metaworld not installed (optional)")
+
+ENV_IDS = [
+    pytest.param(env_id, marks=needs_metaworld) if env_id == "GCRL/SawyerDoor-v0" else env_id
+    for env_id in RESET_FREE_ENV_IDS
+]
+FETCH_IBC_IDS = ["GCRL/ResetFreeFetchPush-v0", "GCRL/ResetFreeFetchPickAndPlace-v0"]
+FETCH_HARD_IDS = ["GCRL/ResetFreeFetchPushHard-v0", "GCRL/ResetFreeFetchPickAndPlaceHard-v0"]
+
+# Documented spaces: (observation dim, goal dim, action dim).
+SPACES = {
+    "GCRL/ResetFreeFetchPush-v0": (25, 3, 4),
+    "GCRL/ResetFreeFetchPickAndPlace-v0": (25, 3, 4),
+    "GCRL/ResetFreeFetchPushHard-v0": (25, 3, 4),
+    "GCRL/ResetFreeFetchPickAndPlaceHard-v0": (25, 3, 4),
+    "GCRL/ResetFreeAntArena-v0": (27, 2, 8),
+    "GCRL/Tabletop-v0": (6, 4, 3),
+    "GCRL/SawyerDoor-v0": (7, 3, 4),
+}
+
+
+THRESHOLDS = {
+    **dict.fromkeys(FETCH_IBC_IDS + FETCH_HARD_IDS, fetch_module.DISTANCE_THRESHOLD),
+    "GCRL/ResetFreeAntArena-v0": ant_module.SUCCESS_THRESHOLD,
+    "GCRL/Tabletop-v0": tabletop_module.SUCCESS_THRESHOLD,
+    "GCRL/SawyerDoor-v0": door_module.SUCCESS_THRESHOLD,
+}
+
+
+@pytest.fixture(scope="module")
+def envs():
+    """One instance of each env, shared by the read-only tests of this module."""
+    made = {}
+    yield made
+    for env in made.values():
+        env.close()
+
+
+def get_env(envs: dict, env_id: str) -> gym.Env:
+    if env_id not in envs:
+        envs[env_id] = gym.make(env_id)
+    return envs[env_id]
+
+
+def test_registry_matches_task_table():
+    register_reset_free_envs()  # idempotent
+    assert len(RESET_FREE_ENV_IDS) == 7
+    for env_id, task in RESET_FREE_TASKS.items():
+        spec = gym.spec(env_id)
+        assert spec.max_episode_steps == task.eval_horizon
+        assert env_id.startswith("GCRL/")
+    assert RESET_FREE_TASKS["GCRL/Tabletop-v0"].eval_horizon == tabletop_module.EVAL_HORIZON == 200
+    assert RESET_FREE_TASKS["GCRL/ResetFreeAntArena-v0"].eval_horizon == ant_module.EVAL_HORIZON == 500
+    assert RESET_FREE_TASKS["GCRL/SawyerDoor-v0"].eval_horizon == door_module.EVAL_HORIZON == 300
+    assert fetch_module.EVAL_HORIZON == 50 and fetch_module.HARD_RESET_EVERY == 100_000
+    assert tabletop_module.HARD_RESET_EVERY == ant_module.HARD_RESET_EVERY == door_module.HARD_RESET_EVERY == 200_000
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_check_env_and_spaces(env_id):
+    env = gym.make(env_id)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        gym_check_env(env.unwrapped, skip_render_check=True)
+        sb3_check_env(env.unwrapped, warn=False)
+    obs_dim, goal_dim, act_dim = SPACES[env_id]
+    space = env.observation_space
+    assert isinstance(space, gym.spaces.Dict)
+    assert space["observation"].shape == (obs_dim,)
+    assert space["achieved_goal"].shape == space["desired_goal"].shape == (goal_dim,)
+    assert env.action_space.shape == (act_dim,)
+    unwrapped = env.unwrapped
+    assert callable(unwrapped.sample_initial_goal) and callable(unwrapped.sample_evaluation_goal)
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_compute_reward_vectorised_and_consistent_with_step(envs, env_id):
+    env = get_env(envs, env_id)
+    unwrapped = env.unwrapped
+    obs, _ = env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    desired = np.stack([unwrapped.sample_evaluation_goal(rng) for _ in range(16)])
+    # Offsets of 0, 0.5 and 1.5 success radii in random directions: both outcomes occur.
+    direction = rng.normal(size=desired.shape)
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    radius = THRESHOLDS[env_id] * np.resize([0.0, 0.5, 1.5, 1.5], len(desired))[:, None]
+    achieved = desired + radius * direction
+    batch = unwrapped.compute_reward(achieved, desired, {})
+    single = np.array([unwrapped.compute_reward(a, d, {}) for a, d in zip(achieved, desired)])
+    assert batch.shape == (16,)
+    np.testing.assert_array_equal(batch, single)
+    success = unwrapped.compute_reward(desired, desired, {})[0]
+    np.testing.assert_array_equal(batch == success, radius[:, 0] < THRESHOLDS[env_id])
+    for _ in range(5):
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert reward == unwrapped.compute_reward(obs["achieved_goal"], obs["desired_goal"], info)
+        assert "is_success" in info
+        assert not terminated
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_seeding_is_deterministic(env_id):
+    def rollout(seed: int) -> list[np.ndarray]:
+        env = gym.make(env_id)
+        env.action_space.seed(0)
+        obs, _ = env.reset(seed=seed)
+        trace = [np.concatenate([obs[k] for k in ("observation", "achieved_goal", "desired_goal")])]
+        for _ in range(10):
+            obs, *_ = env.step(env.action_space.sample())
+            trace.append(np.concatenate([obs[k] for k in ("observation", "achieved_goal", "desired_goal")]))
+        env.close()
+        return trace
+
+    np.testing.assert_array_equal(np.stack(rollout(7)), np.stack(rollout(7)))
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_samplers_use_only_the_given_rng(envs, env_id):
+    unwrapped = get_env(envs, env_id).unwrapped
+    unwrapped.reset(seed=0)
+    env_rng_state = unwrapped.np_random.bit_generator.state
+    for sampler in (unwrapped.sample_initial_goal, unwrapped.sample_evaluation_goal):
+        first = [sampler(np.random.default_rng(5)) for _ in range(3)]
+        second = [sampler(np.random.default_rng(5)) for _ in range(3)]
+        np.testing.assert_array_equal(first, second)
+    assert unwrapped.np_random.bit_generator.state == env_rng_state
+
+
+def _samples(sampler, n: int = 300) -> np.ndarray:
+    rng = np.random.default_rng(1)
+    return np.stack([sampler(rng) for _ in range(n)])
+
+
+@pytest.mark.parametrize("env_id", FETCH_IBC_IDS)
+def test_ibc_fetch_goal_regions(envs, env_id):
+    env = get_env(envs, env_id).unwrapped
+    center, h = env.initial_gripper_xpos[:2], env.height_offset
+    starts = _samples(env.sample_initial_goal)
+    assert np.all(np.abs(starts[:, :2] - center) <= 0.15)
+    assert np.all(np.linalg.norm(starts[:, :2] - center, axis=1) >= 0.1)
+    np.testing.assert_allclose(starts[:, 2], h)
+    goals = _samples(env.sample_evaluation_goal)
+    assert np.all(np.abs(goals[:, :2] - center) <= 0.15)
+    in_air = goals[:, 2] > h + 1e-9
+    if env_id.endswith("PickAndPlace-v0"):
+        assert 0.35 < in_air.mean() < 0.65 and goals[:, 2].max() <= h + 0.45
+    else:
+        assert not in_air.any()
+    # Every start and goal lies inside the object box, so the walls never cut the distributions.
+    half = fetch_module.IBC_BOX_HALF_SIZE - 0.025
+    for points in (starts, goals):
+        assert np.all(np.abs(points[:, :2] - np.asarray(fetch_module.IBC_BOX_CENTER)) <= half)
+
+
+@pytest.mark.parametrize("env_id", FETCH_HARD_IDS)
+def test_hard_fetch_goal_regions(envs, env_id):
+    env = get_env(envs, env_id).unwrapped
+    start, h = np.asarray(fetch_module.HARD_OBJECT_START), env.height_offset
+    starts = _samples(env.sample_initial_goal)
+    np.testing.assert_allclose(starts, np.tile([start[0], start[1], h], (len(starts), 1)))  # fixed start
+    goals = _samples(env.sample_evaluation_goal)
+    if env_id == "GCRL/ResetFreeFetchPushHard-v0":
+        assert np.all(np.abs(goals[:, :2] - start) <= 0.15) and np.abs(goals[:, :2] - start).max() > 0.14
+        np.testing.assert_allclose(goals[:, 2], h)
+    else:  # goals only in the air, in a 5 x 5 x 10 cm box
+        assert np.all(np.abs(goals[:, :2] - start) <= 0.025)
+        assert np.all((goals[:, 2] >= h + 0.10) & (goals[:, 2] <= h + 0.20))
+        assert np.ptp(goals[:, 2]) > 0.09
+    # The env's own reset draws from the same samplers.
+    obs, _ = env.reset(seed=11)
+    np.testing.assert_allclose(obs["achieved_goal"][:2], start, atol=1e-3)
+
+
+def test_ant_goal_regions_and_reset(envs):
+    env = get_env(envs, "GCRL/ResetFreeAntArena-v0").unwrapped
+    starts = _samples(env.sample_initial_goal)
+    assert np.all(np.abs(starts) <= 0.1) and np.abs(starts).max() > 0.09
+    goals = _samples(env.sample_evaluation_goal)
+    assert np.all((goals >= 2.0) & (goals <= 3.0))
+    for seed in range(3):
+        obs, info = env.reset(seed=seed)
+        assert np.all(np.abs(obs["achieved_goal"]) <= 0.1 + 1e-6)
+        assert np.all((obs["desired_goal"] >= 2.0) & (obs["desired_goal"] <= 3.0))
+        assert info["is_success"] is False
+
+
+def test_ant_arena_is_an_open_square_with_walls():
+    env = ant_module.ResetFreeAntArenaEnv()
+    maze = env.maze
+    free = [maze.cell_rowcol_to_xy(np.array([i, j])) for i in (1, 2) for j in (1, 2)]
+    np.testing.assert_allclose(np.abs(np.array(free)), 2.0)  # free square [-4, 4]^2
+    env.reset(seed=0)
+    # Throw the torso at the +x wall: it stops at the wall instead of leaving the arena.
+    data = env.ant_env.data
+    data.qpos[:2] = [2.5, 0.0]
+    data.qvel[:] = 0.0
+    data.qvel[0] = 20.0
+    mujoco.mj_forward(env.ant_env.model, data)
+    for _ in range(40):
+        obs, *_ = env.step(np.zeros(8))
+    assert obs["achieved_goal"][0] < ant_module.ARENA_HALF_SIZE
+    env.close()
+
+
+def test_ant_leaves_no_temporary_xml():
+    pattern = os.path.join(tempfile.gettempdir(), "ant_maze*.xml")
+    before = set(glob.glob(pattern))
+    env = ant_module.ResetFreeAntArenaEnv()
+    env.close()
+    assert set(glob.glob(pattern)) - before == set()
+
+
+def _launch_block(env: fetch_module.ResetFreeFetchEnv, direction: np.ndarray, speed: float = 3.0) -> np.ndarray:
+    """Give the block a horizontal velocity towards ``direction``; return its xy after 1.2 s of zero actions."""
+    env.reset(seed=0)
+    qvel = env._utils.get_joint_qvel(env.model, env.data, "object0:joint").copy()
+    qvel[:] = 0.0
+    qvel[:2] = speed * direction
+    env._utils.set_joint_qvel(env.model, env.data, "object0:joint", qvel)
+    for _ in range(30):
+        obs, *_ = env.step(np.zeros(4))
+    return obs["achieved_goal"]
+
+
+DIRECTIONS = [np.array(d, dtype=float) for d in ((1, 0), (-1, 0), (0, 1), (0, -1))]
+
+
+@pytest.mark.parametrize("cls", [fetch_module.ResetFreeFetchPushEnv, fetch_module.ResetFreeFetchPushHardEnv])
+def test_walls_stop_a_launched_block(cls):
+    env = cls()
+    low, high = np.asarray(env.wall_low), np.asarray(env.wall_high)
+    for direction in DIRECTIONS:
+        block = _launch_block(env, direction)
+        assert np.all(block[:2] >= low) and np.all(block[:2] <= high), (direction, block)
+        assert block[2] > fetch_module.TABLE_TOP_Z  # still on the table
+        # It reached the wall it was thrown at (within a few cm): the launch was strong enough to matter.
+        reach = np.where(direction > 0, high - block[:2], block[:2] - low)[direction != 0]
+        assert reach.item() < 0.06
+    env.close()
+
+
+def test_same_launch_without_walls_leaves_the_box():
+    """Control for the wall test: with stock FetchPush the same throw carries the block past the walls' line."""
+    env = gym.make("FetchPush-v4").unwrapped
+    env.reset(seed=0)
+    qvel = env._utils.get_joint_qvel(env.model, env.data, "object0:joint").copy()
+    qvel[:] = 0.0
+    qvel[0] = 3.0
+    env._utils.set_joint_qvel(env.model, env.data, "object0:joint", qvel)
+    for _ in range(30):
+        obs, *_ = env.step(np.zeros(4))
+    assert obs["achieved_goal"][0] > fetch_module.IBC_BOX_CENTER[0] + fetch_module.IBC_BOX_HALF_SIZE
+    env.close()
+
+
+def _drive_gripper(env: fetch_module.ResetFreeFetchEnv, direction: np.ndarray, steps: int = 40) -> np.ndarray:
+    env.reset(seed=0)
+    action = np.zeros(4)
+    action[:2] = direction
+    for _ in range(steps):
+        obs, *_ = env.step(action)
+    return obs["observation"][:3]  # gripper position
+
+
+def test_ibc_walls_act_on_the_block_only():
+    env = fetch_module.ResetFreeFetchPushEnv()
+    gripper = _drive_gripper(env, np.array([0.0, 1.0]))
+    assert gripper[1] > env.wall_high[1] + 0.05  # the arm passes through the object-only wall
+    env.close()
+
+
+def test_hard_walls_limit_the_gripper_and_release_it():
+    env = fetch_module.ResetFreeFetchPushHardEnv()
+    assert env.block_gripper is False
+    for direction in DIRECTIONS:
+        gripper = _drive_gripper(env, direction)
+        assert np.all(gripper[:2] >= np.asarray(env.wall_low)) and np.all(gripper[:2] <= np.asarray(env.wall_high))
+    # The released gripper opens: finger joints move apart under an "open" command.
+    env.reset(seed=0)
+    closed = env.step(np.array([0.0, 0.0, 0.0, -1.0]))[0]["observation"][9:11].sum()
+    for _ in range(5):
+        obs, *_ = env.step(np.array([0.0, 0.0, 0.0, 1.0]))
+    assert obs["observation"][9:11].sum() > closed + 0.02
+    env.close()
+
+
+def test_pick_and_place_hard_air_goal_is_not_solved_on_the_table():
+    env = fetch_module.ResetFreeFetchPickAndPlaceHardEnv()
+    obs, _ = env.reset(seed=0)
+    # The block rests right below the goal: still a failure (goals need >= 10 cm of lift).
+    resting = np.array([obs["desired_goal"][0], obs["desired_goal"][1], env.height_offset])
+    assert env.compute_reward(resting, obs["desired_goal"], {}) == -1.0
+    assert env.compute_reward(obs["desired_goal"], obs["desired_goal"], {}) == 0.0
+    env.close()
+
+
+def test_tabletop_dynamics_by_hand():
+    env = TabletopEnv()
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(obs["observation"], [0, 0, 2.5, 0, -1, -1])
+    # Move right at full speed (0.2/step) without gripping: the mug stays.
+    for _ in range(11):
+        obs, *_ = env.step(np.array([1.0, 0.0, -1.0]))
+    np.testing.assert_allclose(obs["observation"][:4], [2.2, 0.0, 2.5, 0.0], atol=1e-6)
+    # Grip while 0.3 < 0.4 away: grasped; carry up by 1.0 (the mug follows the fist).
+    for _ in range(5):
+        obs, *_ = env.step(np.array([0.0, 1.0, 1.0]))
+    np.testing.assert_allclose(obs["observation"], [2.2, 1.0, 2.5, 1.0, 0.0, 0.0], atol=1e-6)
+    # Held mug moves by the fist's *clipped* displacement at the table edge (2.8).
+    for _ in range(4):
+        obs, *_ = env.step(np.array([1.0, 0.0, 1.0]))
+    np.testing.assert_allclose(obs["observation"][:4], [2.8, 1.0, 3.1 - 0.3, 1.0], atol=1e-6)
+    # Release and move away: the mug stays put.
+    obs, *_ = env.step(np.array([-1.0, 0.0, -1.0]))
+    np.testing.assert_allclose(obs["observation"], [2.6, 1.0, 2.8, 1.0, -1.0, -1.0], atol=1e-6)
+    # Gripping 0.4 or more away grasps nothing (the fist is at 1.8, the mug 1.0 away).
+    for _ in range(4):
+        obs, *_ = env.step(np.array([-1.0, 0.0, -1.0]))
+    for _ in range(3):
+        obs, *_ = env.step(np.array([-1.0, 0.0, 1.0]))
+    np.testing.assert_allclose(obs["observation"], [1.2, 1.0, 2.8, 1.0, -1.0, -1.0], atol=1e-6)
+
+
+def test_tabletop_goals_and_scripted_solution():
+    env = TabletopEnv()
+    rng = np.random.default_rng(0)
+    goals = _samples(env.sample_evaluation_goal, 200)
+    assert {tuple(g) for g in goals} == {tuple(g) for g in tabletop_module.EVALUATION_GOALS.astype(np.float32)}
+    np.testing.assert_array_equal(env.sample_initial_goal(rng), [0.0, 0.0, 2.5, 0.0])
+    # A scripted policy reaches each goal within the 200-step evaluation horizon.
+    for seed in range(4):
+        obs, _ = env.reset(seed=seed)
+        success = False
+        for _ in range(tabletop_module.EVAL_HORIZON):
+            fist, mug, target = obs["observation"][:2], obs["observation"][2:4], obs["desired_goal"][2:]
+            held = obs["observation"][4] == 0.0
+            if np.linalg.norm(mug - target) > 0.05:
+                aim, grip = (target - mug, 1.0) if held or np.linalg.norm(fist - mug) < 0.3 else (mug - fist, -1.0)
+            else:
+                aim, grip = -fist, -1.0
+            obs, reward, _, _, info = env.step(np.append(np.clip(aim / 0.2, -1, 1), grip))
+            if info["is_success"]:
+                success = reward == 1.0
+                break
+        assert success, seed
+
+
+def test_bad_input_raises_clear_errors():
+    with pytest.raises(ValueError, match="render_mode=None"):
+        TabletopEnv(render_mode="rgb_array")
+    env = TabletopEnv()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="non-finite"):
+        env.step(np.array([np.nan, 0.0, 0.0]))
+    with pytest.raises(ValueError, match=r"shape \(3,\)"):
+        env.step(np.zeros(2))
+    with pytest.raises(ValueError, match="reward_type must be 'sparse' or 'dense'"):
+        fetch_module.ResetFreeFetchPushEnv(reward_type="shaped")
+    with pytest.raises(ValueError, match="reward_type must be 'sparse' or 'dense'"):
+        ant_module.ResetFreeAntArenaEnv(reward_type="shaped")
+
+
+def test_sawyer_door_without_metaworld_names_the_install_command(monkeypatch):
+    monkeypatch.setitem(sys.modules, "metaworld.envs.sawyer_door_close_v3", None)  # import fails
+    with pytest.raises(ImportError, match=r"pip install --no-deps metaworld==3\.0\.0"):
+        door_module.SawyerDoorEnv()
+
+
+@needs_metaworld
+def test_sawyer_door_start_goal_and_scripted_close():
+    from metaworld.policies.sawyer_door_close_v3_policy import SawyerDoorCloseV3Policy
+
+    env = door_module.SawyerDoorEnv()
+    obs, info = env.reset(seed=0)
+    assert -np.pi / 3 <= env.door_angle <= -np.pi / 3 + np.pi / 20
+    np.testing.assert_allclose(obs["observation"][:3], door_module.HAND_START, atol=0.01)
+    assert not info["is_success"]
+    # rho_0: open-door handle positions, all far from the single closed-door goal.
+    starts = _samples(env.sample_initial_goal, 20)
+    assert np.ptp(starts[:, 0]) > 0.005
+    assert np.all(np.linalg.norm(starts - env.sample_evaluation_goal(None), axis=1) > 0.2)
+    np.testing.assert_allclose(obs["desired_goal"], env.sample_evaluation_goal(None))
+    # metaworld's scripted door-close policy closes it within the evaluation horizon.
+    policy = SawyerDoorCloseV3Policy()
+    for _ in range(door_module.EVAL_HORIZON):
+        raw = env._sim._get_obs()
+        raw[-3:] = env._sim._target_pos
+        obs, reward, *_, info = env.step(policy.get_action(raw))
+        if info["is_success"]:
+            break
+    assert info["is_success"] and reward == 1.0 and abs(env.door_angle) < 0.1
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ["GCRL/ResetFreeFetchPushHard-v0", "GCRL/ResetFreeAntArena-v0"])
+def test_pickle_round_trip(envs, env_id):
+    env = get_env(envs, env_id).unwrapped
+    clone = pickle.loads(pickle.dumps(env))
+    a, _ = env.reset(seed=4)
+    b, _ = clone.reset(seed=4)
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key])
+    clone.close()
