@@ -5,8 +5,18 @@ gymnasium-robotics and MinAtar ones), so ``rl_zoo3 train --gym-packages sb3_gcrl
 """
 
 from sb3_gcrl.envs import register_envs
+from sb3_gcrl.tabular import TabularEpisodicControl, TabularQLearning, TabularTwoMemory
+from sb3_gcrl.two_memory import TwoMemoryDQN, TwoMemorySAC
 from sb3_gcrl.version import __version__
 
 register_envs()
 
-__all__ = ["__version__", "register_envs"]
+__all__ = [
+    "TabularEpisodicControl",
+    "TabularQLearning",
+    "TabularTwoMemory",
+    "TwoMemoryDQN",
+    "TwoMemorySAC",
+    "__version__",
+    "register_envs",
+]

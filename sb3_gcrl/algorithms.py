@@ -13,6 +13,11 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 #: name used with ``--algo`` -> ``"module:Class"``
 ALGORITHMS: dict[str, str] = {}
+ALGORITHMS["two_memory_dqn"] = "sb3_gcrl.two_memory:TwoMemoryDQN"
+ALGORITHMS["two_memory_sac"] = "sb3_gcrl.two_memory:TwoMemorySAC"
+ALGORITHMS["tabular_q"] = "sb3_gcrl.tabular:TabularQLearning"
+ALGORITHMS["tabular_ec"] = "sb3_gcrl.tabular:TabularEpisodicControl"
+ALGORITHMS["tabular_2m"] = "sb3_gcrl.tabular:TabularTwoMemory"
 
 
 def load_algorithm(name: str) -> type[BaseAlgorithm]:
