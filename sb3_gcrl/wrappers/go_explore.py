@@ -62,6 +62,19 @@ class GoExploreWrapper(GoalCommandWrapper):
         success_distance: float | None = None,
         task_goal_capacity: int = 10_000,
     ) -> None:
+        # record this class's arguments (so gym.make can re-create the wrapper), before the parent records its own
+        gym.utils.RecordConstructorArgs.__init__(
+            self,
+            scheduler=scheduler,
+            scheduler_kwargs=scheduler_kwargs,
+            eval_horizon=eval_horizon,
+            go_steps=go_steps,
+            explore_steps=explore_steps,
+            explore_policy=explore_policy,
+            end_go_on_success=end_go_on_success,
+            success_distance=success_distance,
+            task_goal_capacity=task_goal_capacity,
+        )
         super().__init__(env, scheduler, scheduler_kwargs, success_distance, task_goal_capacity)
         if (go_steps is None or explore_steps is None) and eval_horizon is None:
             raise ValueError(

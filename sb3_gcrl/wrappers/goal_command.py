@@ -26,7 +26,9 @@ from sb3_gcrl.wrappers.goal_env import check_goal_env
 Mode = Literal["episodic", "reset_free"]
 
 
-class GoalCommandWrapper(gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray]):
+class GoalCommandWrapper(
+    gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray], gym.utils.RecordConstructorArgs
+):
     """Command scheduled goals to a goal env (reset-free training), recomputing reward and success.
 
     :param env: a gymnasium-robotics style goal env (usually wrapped in :class:`ResetFreeWrapper`).
@@ -50,6 +52,13 @@ class GoalCommandWrapper(gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str
         task_goal_capacity: int = 10_000,
     ) -> None:
         check_goal_env(env, type(self).__name__)
+        gym.utils.RecordConstructorArgs.__init__(
+            self,
+            scheduler=scheduler,
+            scheduler_kwargs=scheduler_kwargs,
+            success_distance=success_distance,
+            task_goal_capacity=task_goal_capacity,
+        )
         super().__init__(env)
         goal_dim = int(np.prod(env.observation_space["achieved_goal"].shape))
         self.task_goals = TaskRelevantGoals(env, goal_dim, capacity=task_goal_capacity)
@@ -89,6 +98,10 @@ class GoalCommandWrapper(gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str
     def sample_task_goals(self, kind: GoalKind, n: int) -> np.ndarray:
         """Draw ``n`` goals from rho_0 (``"initial"``) or rho_g* (``"evaluation"``), shape ``(n, goal_dim)``."""
         return self.task_goals.sample(kind, self._task_goal_rng, n)
+
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
+        """The env's vectorised reward (gymnasium 1.x wrappers do not forward attributes)."""
+        return self._compute_reward(achieved_goal, desired_goal, info)
 
     # --- success ----------------------------------------------------------------------------------------------
     def is_success(self, achieved_goal: np.ndarray, goal: np.ndarray, info: dict[str, Any]) -> bool:

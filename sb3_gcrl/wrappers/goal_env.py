@@ -40,7 +40,9 @@ def check_goal_env(env: gym.Env, wrapper_name: str) -> None:
         )
 
 
-class IsSuccessWrapper(gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray]):
+class IsSuccessWrapper(
+    gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray], gym.utils.RecordConstructorArgs
+):
     """Provide ``info["is_success"]`` for goal envs that report success under another key.
 
     gymnasium-robotics' PointMaze/AntMaze report ``info["success"]``; SB3's ``Monitor``/``EvalCallback`` and
@@ -55,9 +57,14 @@ class IsSuccessWrapper(gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, 
 
     def __init__(self, env: gym.Env, source_key: str = "success", success_distance: float | None = None) -> None:
         check_goal_env(env, type(self).__name__)
+        gym.utils.RecordConstructorArgs.__init__(self, source_key=source_key, success_distance=success_distance)
         super().__init__(env)
         self.source_key = source_key
         self.success_distance = success_distance
+
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
+        """The env's vectorised reward (gymnasium 1.x wrappers do not forward attributes)."""
+        return self.env.unwrapped.compute_reward(achieved_goal, desired_goal, info)
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)

@@ -28,7 +28,7 @@ Mode = Literal["episodic", "reset_free"]
 EARL_HARD_RESET_EVERY = 200_000
 
 
-class ResetFreeWrapper(gym.Wrapper):
+class ResetFreeWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Physical resets every ``hard_reset_every`` steps; SB3 sees truncated segments in between.
 
     :param env: the env to train without resets (any gymnasium env; goal envs for the goal wrappers on top).
@@ -46,6 +46,9 @@ class ResetFreeWrapper(gym.Wrapper):
         segment_length: int | None = None,
         eval_horizon: int | None = None,
     ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self, hard_reset_every=hard_reset_every, segment_length=segment_length, eval_horizon=eval_horizon
+        )
         super().__init__(env)
         for name, value in (
             ("hard_reset_every", hard_reset_every),

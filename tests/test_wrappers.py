@@ -1,0 +1,317 @@
+"""Reset-free, goal-commanding and Go/Explore wrappers (issue 3, items 2-4)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium import spaces
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import sb3_gcrl  # noqa: F401 (registers GCRL/ envs)
+from sb3_gcrl.goals import GoalScheduler
+from sb3_gcrl.wrappers import (
+    EXECUTED_ACTION_KEY,
+    GoalCommandWrapper,
+    GoExploreWrapper,
+    IsSuccessWrapper,
+    ResetFreeWrapper,
+)
+
+UMAZE_GOAL = "GCRL/PointUMazeGoal-v0"
+
+
+class LineGoalEnv(gym.Env):
+    """Tiny goal env on a line: x += action, goal reached within 0.1; optional terminal state at x >= wall.
+
+    Declares rho_0 = {0} and rho_g* = {1} when ``declare=True`` (DESIGN.md contract 1).
+    """
+
+    metadata: dict[str, Any] = {"render_modes": []}
+
+    def __init__(self, declare: bool = True, terminal_at: float | None = None) -> None:
+        self.observation_space = spaces.Dict(
+            {
+                "observation": spaces.Box(-10, 10, (1,), np.float64),
+                "achieved_goal": spaces.Box(-10, 10, (1,), np.float64),
+                "desired_goal": spaces.Box(-10, 10, (1,), np.float64),
+            }
+        )
+        self.action_space = spaces.Box(-0.1, 0.1, (1,), np.float32)
+        self.terminal_at = terminal_at
+        self.x = 0.0
+        self.goal = 1.0
+        if declare:
+            self.sample_initial_goal = lambda rng: np.array([0.0])
+            self.sample_evaluation_goal = lambda rng: np.array([1.0])
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        x = np.array([self.x])
+        return {"observation": x.copy(), "achieved_goal": x.copy(), "desired_goal": np.array([self.goal])}
+
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
+        return (np.abs(achieved_goal - desired_goal)[..., 0] <= 0.1).astype(np.float64)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.x = float(self.np_random.uniform(-0.05, 0.05))
+        self.goal = float(1.0 + self.np_random.uniform(-0.05, 0.05))
+        return self._obs(), {"is_success": False}
+
+    def step(self, action):
+        self.x = float(np.clip(self.x + float(np.asarray(action).reshape(-1)[0]), -10, 10))
+        obs = self._obs()
+        reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"], {}))
+        terminated = self.terminal_at is not None and self.x >= self.terminal_at
+        return obs, reward, terminated, False, {"is_success": reward > 0}
+
+
+class FixedGoalScheduler(GoalScheduler):
+    """Commands a fixed goal (for tests)."""
+
+    kind = "fixed"
+
+    def __init__(self, goal: np.ndarray) -> None:
+        self.goal = np.asarray(goal, dtype=np.float64)
+
+    def next_goal(self, obs, rng):
+        return self.goal.copy()
+
+
+def umaze_morefree(alpha: float = 0.2, hard_reset_every: int = 200_000, eval_horizon: int = 100) -> gym.Env:
+    env = ResetFreeWrapper(gym.make(UMAZE_GOAL), hard_reset_every=hard_reset_every, eval_horizon=eval_horizon)
+    kwargs = {"alpha": alpha, "goal_low": [-1.5, -1.5], "goal_high": [1.5, 1.5], "n_bins": 6}
+    return GoExploreWrapper(env, "back_and_forth", kwargs, eval_horizon=eval_horizon)
+
+
+# --- checkers ------------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("reset_free", [False, True])
+def test_full_chain_passes_env_checkers(reset_free: bool) -> None:
+    env = umaze_morefree()
+    if reset_free:
+        env.enable_reset_free()
+    gym_check_env(env, skip_render_check=True)
+    sb3_check_env(env, warn=False)
+
+
+@pytest.mark.parametrize("wrapper", [GoalCommandWrapper, GoExploreWrapper, IsSuccessWrapper])
+def test_non_goal_env_is_rejected_with_the_fix(wrapper: type) -> None:
+    with pytest.raises(TypeError, match="needs a goal env"):
+        wrapper(gym.make("Pendulum-v1"))
+
+
+def test_bad_hyperparameters_raise() -> None:
+    with pytest.raises(ValueError, match="hard_reset_every must be a positive integer"):
+        ResetFreeWrapper(LineGoalEnv(), hard_reset_every=0)
+    with pytest.raises(ValueError, match="eval_horizon"):
+        GoExploreWrapper(LineGoalEnv(), "env_default")
+    with pytest.raises(ValueError, match="goal_low and goal_high"):
+        GoalCommandWrapper(LineGoalEnv(), "novelty")
+    with pytest.raises(ValueError, match="Unknown goal scheduler 'peg'"):
+        GoalCommandWrapper(LineGoalEnv(), "peg")
+    with pytest.raises(ValueError, match="explore_policy"):
+        GoExploreWrapper(LineGoalEnv(), "env_default", eval_horizon=10, explore_policy="rnd")
+
+
+# --- reset-free wrapper ----------------------------------------------------------------------------------------------
+def run(env: gym.Env, n_steps: int, action: float = 0.0) -> list[tuple[bool, bool, dict]]:
+    """Step like a VecEnv: reset after every terminated/truncated step. Returns (terminated, truncated, info)."""
+    out = []
+    for _ in range(n_steps):
+        _, _, terminated, truncated, info = env.step(np.array([action], dtype=np.float32))
+        out.append((terminated, truncated, info))
+        if terminated or truncated:
+            env.reset()
+    return out
+
+
+def test_interventions_and_segments() -> None:
+    env = ResetFreeWrapper(LineGoalEnv(), hard_reset_every=50, segment_length=20)
+    env.reset(seed=0)
+    env.enable_reset_free()
+    steps = run(env, 200)
+    truncations = [i + 1 for i, (term, trunc, _) in enumerate(steps) if trunc]
+    # segments of 20 restarted at every hard reset (step 50, 100, 150, 200): 20, 40, 50, 70, 90, 100, ...
+    assert truncations == [20, 40, 50, 70, 90, 100, 120, 140, 150, 170, 190, 200]
+    assert not any(term for term, _, _ in steps)
+    # the initial reset + hard resets after steps 50, 100, 150, 200
+    assert env.interventions == 5 and env.terminal_interventions == 0
+
+
+def test_segment_reset_keeps_the_physical_state() -> None:
+    env = ResetFreeWrapper(LineGoalEnv(), hard_reset_every=1000, segment_length=5)
+    env.reset(seed=0)
+    env.enable_reset_free()
+    for _ in range(5):
+        obs, _, _, truncated, _ = env.step(np.array([0.1], dtype=np.float32))
+    assert truncated
+    obs_after, info = env.reset()
+    assert info["physical_reset"] is False
+    np.testing.assert_array_equal(obs_after["achieved_goal"], obs["achieved_goal"])
+    assert obs_after["achieved_goal"][0] > 0.4  # not back at the start
+    assert env.interventions == 1
+
+
+def test_true_terminal_is_passed_and_counted() -> None:
+    env = ResetFreeWrapper(LineGoalEnv(terminal_at=0.5), hard_reset_every=1000, segment_length=100)
+    env.reset(seed=0)
+    env.enable_reset_free()
+    steps = run(env, 8, action=0.1)
+    terminated = [i + 1 for i, (term, _, _) in enumerate(steps) if term]
+    assert terminated and not steps[terminated[0] - 1][1]  # terminated, not disguised as a truncation
+    assert env.terminal_interventions == 1 and env.interventions == 2
+
+
+def test_inner_time_limit_is_lifted_in_reset_free_mode() -> None:
+    env = ResetFreeWrapper(gym.make(UMAZE_GOAL), hard_reset_every=10_000, segment_length=100)  # inner limit 300
+    env.reset(seed=0)
+    env.enable_reset_free()
+    rng = np.random.default_rng(0)
+    for _ in range(700):
+        _, _, terminated, truncated, _ = env.step(rng.uniform(-1, 1, 2).astype(np.float32))
+        if terminated or truncated:
+            env.reset()
+    assert env.interventions == 1
+
+
+def test_episodic_mode_resets_every_episode_with_eval_horizon() -> None:
+    env = ResetFreeWrapper(LineGoalEnv(), hard_reset_every=1000, segment_length=7, eval_horizon=30)
+    env.reset(seed=0)
+    steps = run(env, 90)
+    assert [i + 1 for i, (_, trunc, _) in enumerate(steps) if trunc] == [30, 60, 90]
+    assert env.interventions == 4
+
+
+# --- goal commanding -------------------------------------------------------------------------------------------------
+def test_commanded_goal_reward_and_success_are_recomputed() -> None:
+    goal = np.array([0.3])
+    env = GoalCommandWrapper(ResetFreeWrapper(LineGoalEnv(), segment_length=50), FixedGoalScheduler(goal))
+    env.reset(seed=0)
+    env.enable_reset_free()
+    obs, _ = env.reset()
+    assert obs["desired_goal"][0] == pytest.approx(0.3)
+    rewards, successes = [], []
+    for _ in range(6):
+        obs, reward, _, _, info = env.step(np.array([0.1], dtype=np.float32))
+        np.testing.assert_allclose(obs["desired_goal"], goal)
+        expected = float(abs(obs["achieved_goal"][0] - 0.3) <= 0.1)
+        assert reward == expected and info["is_success"] == bool(expected)
+        rewards.append(reward)
+        successes.append(info["is_success"])
+    assert 1.0 in rewards and 0.0 in rewards  # passes through the goal at x ~ 0.2..0.4
+    assert env.goal_counts == {"fixed": 1} and env.goal_reached == {"fixed": 1}  # episodic first reset not counted
+
+
+def test_commanding_does_not_leak_into_inner_observations() -> None:
+    inner = ResetFreeWrapper(LineGoalEnv(), segment_length=3)
+    env = GoalCommandWrapper(inner, FixedGoalScheduler(np.array([-2.0])))
+    env.reset(seed=0)
+    env.enable_reset_free()
+    env.reset()
+    for _ in range(3):
+        env.step(np.zeros(1, dtype=np.float32))
+    assert inner._last_obs["desired_goal"][0] == pytest.approx(1.0, abs=0.05)  # the env's own goal
+
+
+def test_episodic_mode_keeps_the_env_goal() -> None:
+    env = GoalCommandWrapper(ResetFreeWrapper(LineGoalEnv(), eval_horizon=10), FixedGoalScheduler(np.array([-2.0])))
+    obs, _ = env.reset(seed=0)
+    obs2, reward, *_ = env.step(np.zeros(1, dtype=np.float32))
+    assert obs["desired_goal"][0] == pytest.approx(1.0, abs=0.05) == obs2["desired_goal"][0]
+
+
+def test_task_goals_learned_from_physical_resets_only() -> None:
+    env = GoalCommandWrapper(ResetFreeWrapper(LineGoalEnv(declare=False), segment_length=5))
+    assert not env.task_goals.declared
+    for seed in range(3):
+        env.reset(seed=seed)
+    env.enable_reset_free()
+    for _ in range(20):
+        _, _, _, truncated, _ = env.step(np.array([0.1], dtype=np.float32))
+        if truncated:
+            env.reset()
+    assert env.task_goals.n_recorded == 3
+    initial = env.sample_task_goals("initial", 100)
+    evaluation = env.sample_task_goals("evaluation", 100)
+    assert np.all(np.abs(initial) <= 0.05) and np.all(np.abs(evaluation - 1.0) <= 0.05)
+
+
+# --- Go / Explore phases --------------------------------------------------------------------------------------------
+def go_explore_line(goal: float, go: int = 5, explore: int = 3) -> GoExploreWrapper:
+    env = GoExploreWrapper(
+        ResetFreeWrapper(LineGoalEnv()), FixedGoalScheduler(np.array([goal])), go_steps=go, explore_steps=explore
+    )
+    env.reset(seed=0)
+    env.enable_reset_free()
+    env.reset()
+    return env
+
+
+def test_go_then_explore_phases_and_executed_actions() -> None:
+    env = go_explore_line(goal=5.0)  # unreachable: the full Go phase is used
+    agent_action = np.array([0.0], dtype=np.float32)
+    records = []
+    for _ in range(8):
+        _, _, _, truncated, info = env.step(agent_action)
+        records.append((info.get(EXECUTED_ACTION_KEY), truncated))
+    assert all(executed is None for executed, _ in records[:5])
+    explore = [executed for executed, _ in records[5:]]
+    assert all(executed is not None and executed[0] != 0.0 for executed in explore)
+    assert [trunc for _, trunc in records] == [False] * 7 + [True]
+    assert env.phase_steps_total == {"go": 5, "explore": 3}
+
+
+def test_go_phase_ends_when_the_goal_is_reached() -> None:
+    env = go_explore_line(goal=0.0)  # reached at the first step
+    truncated = [env.step(np.zeros(1, dtype=np.float32))[3] for _ in range(4)]
+    assert truncated == [False, False, False, True]
+    assert env.phase_steps_total == {"go": 1, "explore": 3}
+
+
+def test_back_and_forth_phase_sequence_through_the_wrapper() -> None:
+    env = umaze_morefree(alpha=1.0, eval_horizon=20)
+    env.reset(seed=0)
+    env.enable_reset_free()
+    kinds, goals = [], []
+    for _ in range(6):
+        env.reset()
+        kinds.append(env.goal_kind)
+        goals.append(env.goal.copy())
+        for _ in range(20):
+            if env.step(env.action_space.sample())[3]:
+                break
+    assert kinds == ["forward", "back"] * 3
+    forward, back = np.array(goals[0::2]), np.array(goals[1::2])
+    np.testing.assert_allclose(forward, np.tile([-1.0, 1.0], (3, 1)), atol=0.1)  # top-left of the U (rho_g*)
+    np.testing.assert_allclose(back, np.tile([-1.0, -1.0], (3, 1)), atol=0.1)  # bottom-left start (rho_0)
+
+
+def test_seeding_is_deterministic() -> None:
+    def trajectory() -> np.ndarray:
+        env = umaze_morefree(alpha=0.5, eval_horizon=20)
+        env.reset(seed=3)
+        env.action_space.seed(3)
+        env.enable_reset_free()
+        out = []
+        for _ in range(120):
+            obs, _, _, truncated, _ = env.step(env.action_space.sample())
+            out.append(np.concatenate([obs["achieved_goal"], obs["desired_goal"]]))
+            if truncated:
+                env.reset()
+        return np.array(out)
+
+    np.testing.assert_array_equal(trajectory(), trajectory())
+
+
+def test_is_success_adapter() -> None:
+    env = IsSuccessWrapper(gym.make("PointMaze_UMaze-v3"))
+    env.reset(seed=0)
+    info = env.step(env.action_space.sample())[4]
+    assert info["is_success"] == info["success"]
+    env = IsSuccessWrapper(gym.make("PointMaze_UMaze-v3"), source_key="missing")
+    env.reset(seed=0)
+    with pytest.raises(KeyError, match="success_distance"):
+        env.step(env.action_space.sample())
