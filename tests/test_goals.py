@@ -1,0 +1,181 @@
+"""Goal spaces, task-relevant goals and schedulers (issue 3, items 1 and 3; Eq. 6.5 shared with issue 5)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import sb3_gcrl  # noqa: F401 (registers GCRL/ envs)
+from sb3_gcrl.goals import (
+    BackAndForthScheduler,
+    BinnedGoalSpace,
+    EnvDefaultScheduler,
+    NoveltyScheduler,
+    TaskRelevantGoals,
+    declares_task_goals,
+    make_scheduler,
+)
+
+
+# --- binned goal space ----------------------------------------------------------------------------------------------
+def test_bin_index_and_counts_by_hand() -> None:
+    space = BinnedGoalSpace([0.0, 0.0], [1.0, 2.0], n_bins=[2, 4])  # bin widths 0.5 and 0.5
+    # (0.1, 0.1) -> (0, 0) -> 0; (0.6, 1.9) -> (1, 3) -> 1 * 4 + 3 = 7; out of range is clipped
+    np.testing.assert_array_equal(space.bin_index(np.array([[0.1, 0.1], [0.6, 1.9], [-5.0, 9.0]])), [0, 7, 3])
+    space.add(np.array([0.1, 0.1]))
+    space.add(np.array([[0.6, 1.9], [0.7, 1.6], [0.2, 0.2]]))  # batch with a repeated bin
+    assert space.counts[0] == 2 and space.counts[7] == 2 and space.n_visited == 2
+
+
+def test_novelty_distribution_is_eq_6_5() -> None:
+    space = BinnedGoalSpace([0.0], [3.0], n_bins=3)
+    space.add(np.array([[0.5]] * 1 + [[1.5]] * 4))  # n = (1, 4, 0)
+    visited, p = space.novelty_probabilities(tau=1.0)
+    np.testing.assert_array_equal(visited, [0, 1])
+    np.testing.assert_allclose(p, [1.0 / 1.25, 0.25 / 1.25])  # (1/n)^tau normalised
+    _, p2 = space.novelty_probabilities(tau=2.0)
+    np.testing.assert_allclose(p2, [1.0 / 1.0625, 0.0625 / 1.0625])
+    _, p0 = space.novelty_probabilities(tau=0.0)
+    np.testing.assert_allclose(p0, [0.5, 0.5])  # tau = 0: uniform over visited bins
+    space.counts[1] = 10**12  # huge counts stay finite
+    assert np.isfinite(space.novelty_probabilities(tau=10.0)[1]).all()
+
+
+def test_novelty_sampling_frequencies_match_eq_6_5() -> None:
+    space = BinnedGoalSpace([0.0], [3.0], n_bins=3)
+    space.add(np.array([[0.5]] * 1 + [[1.5]] * 4))
+    goals = space.sample_novel(tau=1.0, rng=np.random.default_rng(0), n=20_000)
+    frequency_bin0 = float(np.mean(goals[:, 0] < 1.0))
+    assert abs(frequency_bin0 - 0.8) < 4 * np.sqrt(0.8 * 0.2 / 20_000)
+    assert np.all((goals >= 0.0) & (goals < 2.0))  # never the unvisited bin
+
+
+def test_goals_lie_inside_their_bin() -> None:
+    uniform = BinnedGoalSpace([0.0, 0.0], [1.0, 1.0], n_bins=2, within_bin="uniform")
+    uniform.add(np.array([0.9, 0.1]))
+    goals = uniform.sample_uniform(np.random.default_rng(0), n=500)
+    assert np.all((goals[:, 0] >= 0.5) & (goals[:, 0] <= 1.0) & (goals[:, 1] >= 0.0) & (goals[:, 1] <= 0.5))
+    assert goals[:, 0].std() > 0.1  # spread over the bin
+    visited = BinnedGoalSpace([0.0, 0.0], [1.0, 1.0], n_bins=2, within_bin="visited")
+    visited.add(np.array([0.9, 0.1]))
+    np.testing.assert_array_equal(visited.sample_uniform(np.random.default_rng(0), n=3), [[0.9, 0.1]] * 3)
+
+
+def test_entropy_eq_6_7() -> None:
+    space = BinnedGoalSpace([0.0], [4.0], n_bins=4)
+    space.add(np.array([[0.5], [1.5], [2.5], [3.5]]))
+    assert space.entropy() == pytest.approx(np.log(4))
+
+
+def test_goal_space_errors_name_the_fix() -> None:
+    with pytest.raises(ValueError, match="pass goal_low/goal_high"):
+        BinnedGoalSpace([-np.inf], [np.inf])
+    with pytest.raises(ValueError, match="high must exceed low"):
+        BinnedGoalSpace([1.0], [0.0])
+    with pytest.raises(ValueError, match="use fewer n_bins"):
+        BinnedGoalSpace([0.0] * 4, [1.0] * 4, n_bins=1000)
+    with pytest.raises(RuntimeError, match="add"):
+        BinnedGoalSpace([0.0], [1.0]).sample_uniform(np.random.default_rng(0))
+
+
+# --- task-relevant goals ----------------------------------------------------------------------------------------------
+def test_declared_task_goals_come_from_the_env() -> None:
+    env = gym.make("GCRL/PointUMazeGoal-v0")
+    assert declares_task_goals(env)
+    goals = TaskRelevantGoals(env, goal_dim=2)
+    rng = np.random.default_rng(0)
+    np.testing.assert_allclose(goals.sample("initial", rng, 50), np.tile([-1.0, -1.0], (50, 1)), atol=0.1)
+    np.testing.assert_allclose(goals.sample("evaluation", rng, 50), np.tile([-1.0, 1.0], (50, 1)), atol=0.1)
+
+
+def test_task_goals_are_learned_from_resets_of_any_goal_env() -> None:
+    env = gym.make("PointMaze_UMaze-v3")  # a goal env that declares nothing
+    assert not declares_task_goals(env)
+    goals = TaskRelevantGoals(env, goal_dim=2, capacity=4)
+    with pytest.raises(RuntimeError, match="call reset"):
+        goals.sample("initial", np.random.default_rng(0))
+    seen_initial, seen_eval = [], []
+    for seed in range(6):
+        obs, _ = env.reset(seed=seed)
+        goals.record_reset(obs)
+        seen_initial.append(obs["achieved_goal"])
+        seen_eval.append(obs["desired_goal"])
+    assert goals.n_recorded == 6
+    sample = goals.sample("initial", np.random.default_rng(0), 200)
+    kept = np.array(seen_initial[2:])  # ring buffer of capacity 4 keeps the last 4 resets
+    assert all(np.any(np.all(np.isclose(row, kept), axis=1)) for row in sample)
+    assert len(np.unique(sample, axis=0)) == 4
+    evaluation = goals.sample("evaluation", np.random.default_rng(0), 50)
+    assert all(np.any(np.all(np.isclose(row, np.array(seen_eval[2:])), axis=1)) for row in evaluation)
+    with pytest.raises(ValueError, match="'initial' or 'evaluation'"):
+        goals.sample("start", np.random.default_rng(0))  # type: ignore[arg-type]
+
+
+# --- schedulers ----------------------------------------------------------------------------------------------------
+class FixedTaskGoals(TaskRelevantGoals):
+    """rho_0 = {-1}, rho_g* = {+1} in a 1-D goal space."""
+
+    def __init__(self) -> None:
+        self.declared, self.goal_dim = True, 1
+
+    def sample(self, kind, rng, n=1):
+        return np.full((n, 1), -1.0 if kind == "initial" else 1.0)
+
+
+def obs_at(x: float) -> dict[str, np.ndarray]:
+    return {"observation": np.array([x]), "achieved_goal": np.array([x]), "desired_goal": np.array([7.0])}
+
+
+def test_env_default_scheduler_keeps_the_env_goal() -> None:
+    assert EnvDefaultScheduler().next_goal(obs_at(0.0), np.random.default_rng(0))[0] == 7.0
+
+
+def test_back_and_forth_sequence_is_algorithm_3() -> None:
+    space = BinnedGoalSpace([-5.0], [5.0], n_bins=10, within_bin="visited")
+    scheduler = BackAndForthScheduler(FixedTaskGoals(), NoveltyScheduler(space), alpha=1.0)
+    rng = np.random.default_rng(0)
+    sequence = [(scheduler.next_goal(obs_at(3.3), rng)[0], scheduler.kind) for _ in range(6)]
+    assert sequence == [(1.0, "forward"), (-1.0, "back")] * 3
+    scheduler = BackAndForthScheduler(FixedTaskGoals(), NoveltyScheduler(space), alpha=0.0)
+    assert {(scheduler.next_goal(obs_at(3.3), rng)[0], scheduler.kind) for _ in range(5)} == {(3.3, "explore")}
+
+
+def test_back_and_forth_pair_probability_is_alpha() -> None:
+    space = BinnedGoalSpace([-5.0], [5.0], n_bins=10)
+    space.add(np.array([0.0]))
+    scheduler = BackAndForthScheduler(FixedTaskGoals(), NoveltyScheduler(space), alpha=0.3)
+    rng = np.random.default_rng(1)
+    kinds = []
+    for _ in range(6000):
+        scheduler.next_goal(obs_at(0.0), rng)
+        kinds.append(scheduler.kind)
+    kinds_arr = np.array(kinds)
+    n_forward, n_back, n_explore = (np.sum(kinds_arr == k) for k in ("forward", "back", "explore"))
+    assert n_forward == n_back  # every forward goal is followed by its back goal
+    pair_rate = n_forward / (n_forward + n_explore)  # decisions taken = pairs + exploratory goals
+    assert abs(pair_rate - 0.3) < 4 * np.sqrt(0.3 * 0.7 / (n_forward + n_explore))
+    assert all(kinds[i + 1] == "back" for i in np.flatnonzero(kinds_arr[:-1] == "forward"))
+
+
+def test_pending_back_goal_is_dropped_after_a_physical_reset() -> None:
+    space = BinnedGoalSpace([-5.0], [5.0], n_bins=10, within_bin="visited")
+    scheduler = BackAndForthScheduler(FixedTaskGoals(), NoveltyScheduler(space), alpha=1.0)
+    rng = np.random.default_rng(0)
+    scheduler.next_goal(obs_at(0.0), rng)
+    scheduler.reset_pending()
+    scheduler.next_goal(obs_at(0.0), rng)
+    assert scheduler.kind == "forward"
+
+
+def test_make_scheduler_errors_list_the_choices() -> None:
+    with pytest.raises(ValueError, match="choose one of"):
+        make_scheduler("peg", FixedTaskGoals())
+    with pytest.raises(ValueError, match="alpha must be in"):
+        make_scheduler("back_and_forth", FixedTaskGoals(), [-1.0], [1.0], alpha=1.5)
+    with pytest.raises(ValueError, match="tau must be"):
+        make_scheduler("novelty", FixedTaskGoals(), [-1.0], [1.0], tau=-1.0)
+    scheduler = make_scheduler(
+        "back_and_forth", FixedTaskGoals(), [-1.0], [1.0], alpha=0.2, exploratory="uniform_visited"
+    )
+    assert isinstance(scheduler, BackAndForthScheduler) and scheduler.alpha == 0.2
