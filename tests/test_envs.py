@@ -108,6 +108,29 @@ def test_goal_envs_declare_task_relevant_goals(env_id: str) -> None:
     assert float(single) == float(base.compute_reward(achieved[:1], obs["desired_goal"][None], [{}])[0])
 
 
+@pytest.mark.parametrize("env_id", ["GCRL/GrowingTreeGoal-v0", "GCRL/PointUMazeGoal-v0"])
+def test_goal_envs_work_with_sb3_her_relabelling(env_id: str) -> None:
+    from stable_baselines3 import SAC, HerReplayBuffer
+
+    env = gym.make(env_id, max_episode_steps=20)
+    model = SAC(
+        "MultiInputPolicy",
+        env,
+        replay_buffer_class=HerReplayBuffer,
+        learning_starts=1_000,  # collect only: no gradient step is needed to exercise relabelling
+        policy_kwargs={"net_arch": [8]},
+        seed=0,
+    )
+    model.learn(100)
+    batch = model.replay_buffer.sample(64)
+    # HER recomputed the rewards of relabelled goals through the env's vectorised compute_reward
+    expected = env.unwrapped.compute_reward(
+        batch.next_observations["achieved_goal"].numpy(), batch.observations["desired_goal"].numpy(), {}
+    )
+    np.testing.assert_allclose(batch.rewards.numpy().ravel(), expected)
+    assert 0 < expected.sum() < 64  # some relabelled goals are reached (future strategy), some are not
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # GrowingTree
 # ---------------------------------------------------------------------------------------------------------------
