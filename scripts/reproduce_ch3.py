@@ -9,7 +9,7 @@ task-relevant-state percentage and the visitation heatmap (Fig. 3.5 style).
 Example (what the report quotes)::
 
     nice -n 10 python scripts/reproduce_ch3.py --methods oracle naive goexplore morefree --seeds 0 1 2 \
-        --steps 30000 --workers 3 --out runs/ch3
+        --steps 30000 --workers 3 --out runs/ch3 --params batch_size:128 "policy_kwargs:dict(net_arch=[64, 64])"
 
 Outputs in ``--out``: one RL-Zoo folder per run, ``summary.csv``, ``curves.png``, ``heatmaps.png`` and a printed
 table (final success = mean of the last ``--final-evals`` evaluations; median and mean over seeds).
@@ -42,7 +42,7 @@ def run_dir(out: Path, method: str, seed: int) -> Path:
 
 
 def launch(
-    out: Path, method: str, seed: int, steps: int, eval_freq: int, eval_episodes: int
+    out: Path, method: str, seed: int, steps: int, eval_freq: int, eval_episodes: int, params: list[str]
 ) -> tuple[str, int, float, int]:
     """Run one RL-Zoo training (skipped when its results already exist)."""
     folder = run_dir(out, method, seed)
@@ -55,7 +55,7 @@ def launch(
         "--gym-packages", "sb3_gcrl", "-n", str(steps), "--seed", str(seed),
         "--eval-freq", str(eval_freq), "--eval-episodes", str(eval_episodes), "--num-threads", "1",
         "-f", str(folder), "--save-replay-buffer", "--verbose", "0",
-    ]  # fmt: skip
+    ] + (["-params", *params] if params else [])  # fmt: skip
     start = time.time()
     with open(folder / "train.log", "w") as log:
         rc = subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
@@ -111,13 +111,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("runs/ch3"))
     parser.add_argument("--analyse-only", action="store_true")
+    parser.add_argument(
+        "--params",
+        nargs="*",
+        default=[],
+        help="RL-Zoo hyperparameter overrides for all runs, e.g. batch_size:128 'policy_kwargs:dict(net_arch=[64])'",
+    )
     args = parser.parse_args(argv)
 
     if not args.analyse_only:
         jobs = [(m, s) for s in args.seeds for m in args.methods]
         with ThreadPoolExecutor(args.workers) as pool:
             futures = [
-                pool.submit(launch, args.out, m, s, args.steps, args.eval_freq, args.eval_episodes) for m, s in jobs
+                pool.submit(launch, args.out, m, s, args.steps, args.eval_freq, args.eval_episodes, args.params)
+                for m, s in jobs
             ]
             for future in futures:
                 method, seed, seconds, rc = future.result()
