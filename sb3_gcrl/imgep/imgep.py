@@ -1,0 +1,353 @@
+"""Tabular IMGEP with post-exploration and hindsight relabeling (thesis Ch. 6, Algorithm 3).
+
+Each episode: sample a goal from the goal space of visited states by count-based novelty (Eq. 6.5), reset, act
+epsilon-greedily with a goal-conditioned Q-table towards it; if the goal is reached and post-exploration is on,
+take random actions for as many steps as the :mod:`~sb3_gcrl.post_exploration.rules` rule says (thesis Table 6.2:
+``p_pe = 0.5`` of the path length), then end the episode; without post-exploration the episode ends at the goal.
+The goal space and its counts are updated with every visited state, and the Q-table is updated with Eq. 6.2 on
+the episode for the commanded goal and for hindsight goals (Sec. 6.4.2): half of the trajectory's states,
+always including the whole post-exploration part, are relabeled as goals.
+"""
+
+from __future__ import annotations
+
+from typing import Any, TypeVar
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
+from stable_baselines3.common.utils import safe_mean
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from sb3_gcrl.goals.goal_space import BinnedGoalSpace
+from sb3_gcrl.imgep.policies import TabularGoalPolicy
+from sb3_gcrl.imgep.tabular_goal_env import TabularGoalEnv
+from sb3_gcrl.post_exploration.metrics import coverage, visitation_entropy
+from sb3_gcrl.post_exploration.rules import PostExplorationRule, ProportionalSteps
+
+SelfTabularIMGEP = TypeVar("SelfTabularIMGEP", bound="TabularIMGEP")
+
+
+class TabularIMGEP(BaseAlgorithm):
+    """Goal-conditioned tabular Q-learning in an IMGEP loop, with optional post-exploration (Algorithm 3).
+
+    :param policy: ``"TabularGoalPolicy"`` (or the class).
+    :param env: a tabular env (Discrete observation and actions, e.g. ``"GCRL/FourRoomsTabular-v0"``) or a
+        :class:`~sb3_gcrl.imgep.TabularGoalEnv`; plain tabular envs are wrapped in one (MiniGrid: goals are cells).
+    :param learning_rate: alpha of Eq. 6.2 (Table 6.2: 0.1).
+    :param gamma: discount of Eq. 6.2 (Table 6.2: 0.99).
+    :param epsilon: probability of a random action while going to the goal (Table 6.2: 0, 0.1 or 0.3).
+    :param tau: temperature of the count-based novelty goal sampling, Eq. 6.5 (Table 6.2: 0 = uniform).
+    :param post_exploration: switch post-exploration on/off (the chapter's ablation).
+    :param post_exploration_rule: length rule once the goal is reached (default ``ProportionalSteps(0.5)``,
+        Table 6.2); :class:`~sb3_gcrl.post_exploration.NoveltyAdaptive` is our adaptive variant.
+    :param relabel_fraction: fraction of each trajectory's states relabeled as hindsight goals (Sec. 6.4.2:
+        0.5); the post-exploration part is always relabeled in full.
+    :param policy_kwargs: forwarded to the policy (``initial_value``).
+    :param stats_window_size: episodes averaged in the ``rollout/`` logs.
+    :param tensorboard_log: tensorboard directory.
+    :param verbose: 0 silent, 1 training logs.
+    :param seed: seed of the agent's random generator and the env.
+    :param device: kept for SB3's signature; tables live on the CPU.
+    :param _init_setup_model: build the table now (False when loading).
+    """
+
+    policy_aliases = {"TabularGoalPolicy": TabularGoalPolicy}  # noqa: RUF012
+    policy: TabularGoalPolicy
+
+    def __init__(
+        self,
+        policy: str | type[TabularGoalPolicy],
+        env: GymEnv | str,
+        learning_rate: float = 0.1,
+        gamma: float = 0.99,
+        epsilon: float = 0.1,
+        tau: float = 0.0,
+        post_exploration: bool = True,
+        post_exploration_rule: PostExplorationRule | None = None,
+        relabel_fraction: float = 0.5,
+        policy_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: str = "cpu",
+        _init_setup_model: bool = True,
+    ) -> None:
+        for name, value, low, high in (
+            ("learning_rate", learning_rate, 0.0, 1.0),
+            ("gamma", gamma, 0.0, 1.0),
+            ("epsilon", epsilon, 0.0, 1.0),
+            ("relabel_fraction", relabel_fraction, 0.0, 1.0),
+        ):
+            if not (isinstance(value, (int, float)) and low <= value <= high):
+                raise ValueError(f"{name} must be a number in [{low}, {high}], got {value!r}")
+        if learning_rate == 0:
+            raise ValueError("learning_rate must be > 0 (Eq. 6.2 would never change the table)")
+        if not (np.isfinite(tau) and tau >= 0):
+            raise ValueError(f"tau must be a finite number >= 0 (Eq. 6.5; 0 = uniform), got {tau!r}")
+        if post_exploration_rule is not None and not isinstance(post_exploration_rule, PostExplorationRule):
+            raise TypeError(
+                "post_exploration_rule must be a sb3_gcrl.post_exploration rule (FixedSteps, ProportionalSteps, "
+                f"NoveltyAdaptive), got {type(post_exploration_rule).__name__}"
+            )
+        if env is not None:
+            env = self._as_goal_env(env)
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            policy_kwargs=policy_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            device=device,
+            support_multi_env=False,
+            monitor_wrapper=False,
+            seed=seed,
+            supported_action_spaces=(gym.spaces.Discrete,),
+        )
+        self.gamma = float(gamma)
+        self.epsilon = float(epsilon)
+        self.tau = float(tau)
+        self.post_exploration = bool(post_exploration)
+        self.post_exploration_rule = post_exploration_rule or ProportionalSteps(0.5)
+        self.relabel_fraction = float(relabel_fraction)
+        self.goal_space: BinnedGoalSpace | None = None
+        if _init_setup_model:
+            self._setup_model()
+
+    @staticmethod
+    def _as_goal_env(env: GymEnv | str) -> gym.Env:
+        if isinstance(env, str):
+            env = gym.make(env)
+        if isinstance(env, DummyVecEnv) and env.num_envs == 1:
+            env = env.envs[0]
+        if not isinstance(env, gym.Env):
+            raise TypeError(
+                f"TabularIMGEP runs one env and decides its goals itself: pass a gymnasium env or env id, got "
+                f"{type(env).__name__}"
+            )
+        if isinstance(env.observation_space, gym.spaces.Dict):
+            goal_env = env
+            while not isinstance(goal_env, TabularGoalEnv):
+                if not isinstance(goal_env, gym.Wrapper):
+                    raise TypeError(
+                        "TabularIMGEP needs a tabular env (Discrete observation) or a sb3_gcrl.imgep.TabularGoalEnv"
+                    )
+                goal_env = goal_env.env
+            return env
+        return TabularGoalEnv(env, terminate_at_goal=False)
+
+    def _setup_model(self) -> None:
+        self._setup_lr_schedule()
+        self.set_random_seed(self.seed)
+        self.policy = self.policy_class(  # type: ignore[assignment]
+            self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
+        )
+        self.policy = self.policy.to(self.device)
+        self._setup_runtime()
+
+    def _setup_runtime(self) -> None:
+        """Objects rebuilt at setup and after ``load``; the goal space (visit counts) and counters are saved."""
+        self._rng = np.random.default_rng(self.seed)
+        self._capacity = 1024
+        self._alloc(self._capacity)
+        if getattr(self, "goal_space", None) is None:  # loaded models keep their saved counts
+            n_goals = self.observation_space["desired_goal"].n
+            # Discrete goals are 1-wide bins of the shared binned goal space: bin index == goal index.
+            self.goal_space = BinnedGoalSpace([0.0], [float(n_goals)], n_goals, within_bin="visited")
+            self._n_episodes = 0
+            self._n_reached = 0
+            self._n_post_exploration_steps = 0
+
+    @classmethod
+    def load(cls, path: Any, env: GymEnv | str | None = None, **kwargs: Any) -> TabularIMGEP:  # type: ignore[override]
+        """Load a saved agent; a plain tabular ``env`` is wrapped in a :class:`TabularGoalEnv` as in ``__init__``."""
+        return super().load(path, env=None if env is None else cls._as_goal_env(env), **kwargs)
+
+    def _alloc(self, capacity: int) -> None:
+        self._states = np.zeros(capacity, dtype=np.int64)
+        self._actions = np.zeros(capacity, dtype=np.int64)
+        self._next_states = np.zeros(capacity, dtype=np.int64)
+        self._next_goals = np.zeros(capacity, dtype=np.int64)
+        self._terminals = np.zeros(capacity, dtype=bool)
+
+    def _grow(self) -> None:
+        old = (self._states, self._actions, self._next_states, self._next_goals, self._terminals)
+        self._capacity *= 2
+        self._alloc(self._capacity)
+        for new, prev in zip((self._states, self._actions, self._next_states, self._next_goals, self._terminals), old):
+            new[: prev.size] = prev
+
+    @property
+    def goal_env(self) -> TabularGoalEnv:
+        """The :class:`TabularGoalEnv` the agent acts in."""
+        env = self.env.envs[0]  # type: ignore[union-attr]
+        while not isinstance(env, TabularGoalEnv):
+            env = env.env
+        return env
+
+    # --- acting -------------------------------------------------------------------------------------------------
+    def _explore_action(self, state: int, goal: int) -> int:
+        """Epsilon-greedy with random tie-breaking (an all-zero row is a uniformly random action)."""
+        n_actions = self.policy.n_actions
+        if self._rng.random() < self.epsilon:
+            return int(self._rng.integers(n_actions))
+        q = self.policy.q[state, goal]
+        best = np.flatnonzero(q == q.max())
+        return int(best[0] if best.size == 1 else self._rng.choice(best))
+
+    def _sample_goal(self, first_obs: dict[str, Any]) -> int | None:
+        """Eq. 6.5 over the visited goals; None while the goal space is empty (random-policy episode)."""
+        if self.goal_space.n_visited == 0:
+            return None
+        visited, p = self.goal_space.novelty_probabilities(self.tau)
+        return int(self._rng.choice(visited, p=p))  # bin index == goal index
+
+    # --- learning -----------------------------------------------------------------------------------------------
+    def _hindsight_goals(self, length: int, reached_at: int | None, goal: int | None) -> np.ndarray:
+        """Goals to learn from: the commanded one plus the relabeled states of Sec. 6.4.2."""
+        budget = int(np.ceil(self.relabel_fraction * length))
+        if reached_at is None:
+            go_part, post_part = np.arange(length), np.arange(0)
+        else:
+            go_part, post_part = np.arange(reached_at + 1), np.arange(reached_at + 1, length)
+        n_go = int(np.clip(budget - post_part.size, 0, go_part.size))
+        picked = np.concatenate([post_part, self._rng.choice(go_part, size=n_go, replace=False)])
+        goals = self._next_goals[picked.astype(np.int64)]
+        if goal is not None:
+            goals = np.append(goals, goal)
+        return np.unique(goals)
+
+    def _update(self, length: int, goals: np.ndarray) -> None:
+        """Q-learning (Eq. 6.2) for every goal in ``goals`` over the episode, last transition first.
+
+        Reaching the goal is terminal for that goal (its one-hot reward, Eq. 6.6, is the whole return); the env's
+        own terminations (lava) are terminal for every goal; truncation bootstraps.
+        """
+        q = self.policy.q
+        alpha, gamma = self.learning_rate, self.gamma
+        for t in range(length - 1, -1, -1):
+            s, a, s2 = self._states[t], self._actions[t], self._next_states[t]
+            hit = goals == self._next_goals[t]
+            done = hit | self._terminals[t]
+            target = hit + gamma * np.where(done, 0.0, q[s2, goals].max(axis=1))
+            q[s, goals, a] += alpha * (target - q[s, goals, a])
+
+    def _run_episode(self, callback: BaseCallback, total_timesteps: int) -> bool:
+        env = self.goal_env
+        goal = self._sample_goal({})
+        obs, _ = env.reset(options={"goal": goal} if goal is not None else None)
+        state = int(obs["observation"])
+        first_goal = int(obs["achieved_goal"])
+        rule_counts = self.goal_space.counts
+        reached_at: int | None = None
+        post_left = 0
+        t = 0
+        while True:
+            if t == self._capacity:
+                self._grow()
+            post_exploring = reached_at is not None
+            if goal is None or post_exploring:
+                action = int(self._rng.integers(self.policy.n_actions))  # random policy: init episode / post-expl.
+            else:
+                action = self._explore_action(state, goal)
+            obs, _, terminated, truncated, info = env.step(action)
+            self.num_timesteps += 1
+            next_state = int(obs["observation"])
+            self._states[t], self._actions[t], self._next_states[t] = state, action, next_state
+            self._next_goals[t], self._terminals[t] = obs["achieved_goal"], terminated
+            t += 1
+            state = next_state
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return False
+            if post_exploring:
+                self._n_post_exploration_steps += 1
+                post_left -= 1
+                if post_left <= 0:
+                    break
+            elif goal is not None and int(obs["achieved_goal"]) == goal:
+                reached_at = t - 1
+                self._n_reached += 1
+                if not self.post_exploration:
+                    break
+                visited = rule_counts[rule_counts > 0]
+                post_left = self.post_exploration_rule.length(t, float(rule_counts[goal]), float(np.median(visited)))
+                if post_left <= 0:
+                    break
+            if terminated or truncated or self.num_timesteps >= total_timesteps:
+                break
+        # Algorithm 3: extend G and p(g) with every state of the episode, then learn with hindsight.
+        self.goal_space.add(np.append(self._next_goals[:t], first_goal).astype(np.float64)[:, None])
+        self._update(t, self._hindsight_goals(t, reached_at, goal))
+        self._n_episodes += 1
+        self.ep_info_buffer.append({"r": float(reached_at is not None), "l": t, "t": 0.0})  # type: ignore[union-attr]
+        self.ep_success_buffer.append(reached_at is not None)  # type: ignore[union-attr]
+        return True
+
+    def learn(
+        self: SelfTabularIMGEP,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 100,
+        tb_log_name: str = "TabularIMGEP",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfTabularIMGEP:
+        """Run Algorithm 3 for ``total_timesteps`` environment steps (post-exploration steps included).
+
+        :param log_interval: log every this many episodes.
+        """
+        total_timesteps, callback = self._setup_learn(
+            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
+        )
+        callback.on_training_start(locals(), globals())
+        while self.num_timesteps < total_timesteps:
+            if not self._run_episode(callback, total_timesteps):
+                break
+            self._update_current_progress_remaining(self.num_timesteps, total_timesteps)
+            if log_interval and self._n_episodes % log_interval == 0:
+                self._dump_logs()
+        callback.on_training_end()
+        return self
+
+    # --- metrics --------------------------------------------------------------------------------------------
+    def visitation_entropy(self) -> float:
+        """Entropy of the visits of the goal space so far (Eq. 6.7)."""
+        return visitation_entropy(self.goal_space.counts)
+
+    def coverage(self) -> float:
+        """Fraction of the reachable goals visited so far."""
+        mask = np.zeros(self.goal_space.n_cells, dtype=bool)
+        mask[self.goal_env.reachable_goals] = True
+        return coverage(self.goal_space.counts, mask)
+
+    def _dump_logs(self) -> None:
+        self.logger.record("time/episodes", self._n_episodes, exclude="tensorboard")
+        self.logger.record("rollout/ep_len_mean", safe_mean([ep["l"] for ep in self.ep_info_buffer]))
+        self.logger.record("rollout/success_rate", safe_mean(list(self.ep_success_buffer)))
+        self.logger.record("imgep/goal_space_size", self.goal_space.n_visited)
+        self.logger.record("imgep/goals_reached", self._n_reached)
+        self.logger.record("post_exploration/steps", self._n_post_exploration_steps)
+        self.logger.record("post_exploration/coverage", self.coverage())
+        self.logger.record("post_exploration/visitation_entropy", self.visitation_entropy())
+        self.logger.dump(step=self.num_timesteps)
+
+    # --- saving ---------------------------------------------------------------------------------------------
+    def _excluded_save_params(self) -> list[str]:
+        return [
+            *super()._excluded_save_params(),
+            "_rng",
+            "_states",
+            "_actions",
+            "_next_states",
+            "_next_goals",
+            "_terminals",
+        ]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy"], []

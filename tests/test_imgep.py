@@ -1,0 +1,224 @@
+"""Tabular IMGEP (thesis Ch. 6, Algorithm 3): Q-learning updates, relabeling, post-exploration, save/load."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium import spaces
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import sb3_gcrl  # noqa: F401
+from sb3_gcrl.imgep import TabularGoalEnv, TabularGoalPolicy, TabularIMGEP, minigrid_reachable_cells
+from sb3_gcrl.post_exploration import AllGoalsEvalCallback, FixedSteps, ProportionalSteps, evaluate_all_goals
+
+
+class ChainEnv(gym.Env):
+    """States 0..n-1 on a line, start 0; action 1 moves right, 0 left; truncation after ``horizon`` steps."""
+
+    def __init__(self, n: int = 6, horizon: int = 20) -> None:
+        self.observation_space = spaces.Discrete(n)
+        self.action_space = spaces.Discrete(2)
+        self.n, self.horizon = n, horizon
+        self.executed: list[int] = []
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.state, self.t = 0, 0
+        return np.int64(0), {}
+
+    def step(self, action):
+        self.executed.append(int(action))
+        self.state = int(np.clip(self.state + (1 if action == 1 else -1), 0, self.n - 1))
+        self.t += 1
+        return np.int64(self.state), 0.0, False, self.t >= self.horizon, {}
+
+
+def make_model(**kwargs) -> TabularIMGEP:
+    kwargs.setdefault("seed", 0)
+    return TabularIMGEP("TabularGoalPolicy", ChainEnv(), **kwargs)
+
+
+def test_q_update_matches_eq_6_2_by_hand() -> None:
+    model = make_model(learning_rate=0.5, gamma=0.9)
+    q = model.policy.q
+    q[2, 3, 1] = 0.8  # from state 2, going right is worth 0.8 for goal 3
+    # one trajectory 0 -(1)-> 1 -(1)-> 2, learned for goals 2 and 3
+    model._states[:2], model._actions[:2], model._next_states[:2] = [0, 1], [1, 1], [1, 2]
+    model._next_goals[:2], model._terminals[:2] = [1, 2], [False, False]
+    model._update(2, np.array([2, 3]))
+    # backwards: t=1 (1 -> 2): goal 2 hit: target 1 -> 0.5; goal 3: target 0.9 * 0.8 = 0.72 -> 0.36
+    assert q[1, 2, 1] == pytest.approx(0.5)
+    assert q[1, 3, 1] == pytest.approx(0.36)
+    # t=0 (0 -> 1): goal 2: 0.9 * max Q[1, 2] = 0.45 -> 0.225; goal 3: 0.9 * 0.36 * 0.5 = 0.162
+    assert q[0, 2, 1] == pytest.approx(0.225)
+    assert q[0, 3, 1] == pytest.approx(0.162)
+    assert q[0, :, 0].sum() == 0 and q[1, :, 0].sum() == 0
+
+
+def test_env_termination_is_terminal_for_every_goal() -> None:
+    model = make_model(learning_rate=1.0, gamma=0.9)
+    model.policy.q[1, 4, :] = 1.0
+    model._states[0], model._actions[0], model._next_states[0] = 0, 1, 1
+    model._next_goals[0], model._terminals[0] = 1, True  # e.g. stepped into lava
+    model._update(1, np.array([4]))
+    assert model.policy.q[0, 4, 1] == 0.0
+
+
+def test_hindsight_goals_relabel_half_and_the_whole_post_exploration_part() -> None:
+    model = make_model(relabel_fraction=0.5)
+    model._next_goals[:10] = np.arange(10) + 100  # all distinct, so the count of goals is the count of states
+    goals = model._hindsight_goals(10, reached_at=5, goal=7)
+    assert set(range(106, 110)) <= set(goals)  # post-exploration part (t = 6..9) always relabeled
+    assert len(goals) == 5 + 1  # ceil(0.5 * 10) states + the commanded goal
+    assert 7 in goals
+    goals = model._hindsight_goals(10, reached_at=1, goal=3)  # post part (8) larger than the budget (5)
+    assert set(range(102, 110)) <= set(goals)
+
+
+class RecordPostExploration(BaseCallback):
+    def __init__(self) -> None:
+        super().__init__()
+        self.flags: list[bool] = []
+
+    def _on_step(self) -> bool:
+        self.flags.append(bool(self.locals["post_exploring"]))
+        return True
+
+
+def test_post_exploration_starts_only_on_success_and_lasts_n_pe_steps() -> None:
+    model = make_model(epsilon=0.0, post_exploration_rule=FixedSteps(3))
+    model.policy.q[:, :, 1] = 1.0  # greedy: always right, reaches goal 4 after 4 steps
+    model._sample_goal = lambda obs: 4  # type: ignore[method-assign]
+    model.goal_space.add(np.array([[0.0]]))
+    recorder = RecordPostExploration()
+    model.learn(70, callback=recorder, log_interval=0)
+    first = recorder.flags[:7]
+    assert first == [False] * 4 + [True] * 3  # goal reached on step 4, then exactly n_pe = 3 random steps
+    assert model._n_reached == model._n_episodes
+    assert model._n_post_exploration_steps == 3 * model._n_episodes
+
+
+def test_no_post_exploration_without_success_or_when_switched_off() -> None:
+    model = make_model(epsilon=0.0, post_exploration_rule=FixedSteps(3))
+    model.policy.q[:, :, 0] = 1.0  # greedy: always left, never reaches goal 4
+    model._sample_goal = lambda obs: 4  # type: ignore[method-assign]
+    model.goal_space.add(np.array([[0.0]]))
+    recorder = RecordPostExploration()
+    model.learn(40, callback=recorder, log_interval=0)
+    assert not any(recorder.flags) and model._n_post_exploration_steps == 0
+    assert len(recorder.flags) == 40  # two full 20-step episodes
+    off = make_model(epsilon=0.0, post_exploration=False)
+    off.policy.q[:, :, 1] = 1.0
+    off._sample_goal = lambda obs: 4  # type: ignore[method-assign]
+    off.goal_space.add(np.array([[0.0]]))
+    off.learn(40, log_interval=0)
+    assert off._n_post_exploration_steps == 0 and off._n_episodes == 10  # every episode ends at the goal
+
+
+def test_proportional_post_exploration_length_and_executed_actions_are_stored() -> None:
+    model = make_model(epsilon=0.0, post_exploration_rule=ProportionalSteps(0.5))
+    model.policy.q[:, :, 1] = 1.0
+    model._sample_goal = lambda obs: 4  # type: ignore[method-assign]
+    model.goal_space.add(np.array([[0.0]]))
+    env = model.goal_env.env
+    env.executed.clear()
+    model.learn(6, log_interval=0)
+    assert model._n_episodes == 1 and model._n_post_exploration_steps == 2  # ceil(0.5 * 4) post-exploration steps
+    np.testing.assert_array_equal(model._actions[:6], env.executed[:6])
+    assert model._actions[:4].tolist() == [1, 1, 1, 1]
+
+
+def test_goal_sampling_follows_eq_6_5() -> None:
+    model = make_model(tau=1.0)
+    model.goal_space.counts[[1, 2, 5]] = [1, 2, 4]
+    samples = np.array([model._sample_goal({}) for _ in range(20_000)])
+    freq = np.array([(samples == g).mean() for g in (1, 2, 5)])
+    np.testing.assert_allclose(freq, np.array([1, 0.5, 0.25]) / 1.75, atol=0.015)
+    model.tau = 0.0
+    samples = np.array([model._sample_goal({}) for _ in range(6_000)])
+    np.testing.assert_allclose([(samples == g).mean() for g in (1, 2, 5)], 1 / 3, atol=0.03)
+
+
+def test_first_episode_is_random_and_initialises_the_goal_space() -> None:
+    model = make_model()
+    assert model.goal_space.n_visited == 0
+    model.learn(20, log_interval=0)
+    assert model.goal_space.counts.sum() == 21  # 20 visited states + the start
+    assert model.goal_space.n_visited >= 2
+
+
+def test_seeding_determinism_and_save_load_round_trip(tmp_path) -> None:
+    a = make_model(seed=3)
+    b = make_model(seed=3)
+    a.learn(500, log_interval=0)
+    b.learn(500, log_interval=0)
+    np.testing.assert_array_equal(a.policy.q, b.policy.q)
+    assert a.policy.q.any()
+    a.save(tmp_path / "imgep")
+    loaded = TabularIMGEP.load(tmp_path / "imgep", env=ChainEnv())
+    np.testing.assert_array_equal(loaded.policy.q, a.policy.q)
+    obs = {"observation": np.arange(6), "desired_goal": np.full(6, 5), "achieved_goal": np.arange(6)}
+    np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], a.predict(obs, deterministic=True)[0])
+    assert loaded.epsilon == a.epsilon and loaded.post_exploration_rule.p_pe == 0.5
+    loaded.learn(100, log_interval=0)  # runtime state rebuilt on load
+
+
+def test_bad_input_raises_clear_errors() -> None:
+    with pytest.raises(TypeError, match="Discrete observation"):
+        TabularIMGEP("TabularGoalPolicy", "CartPole-v1")
+    with pytest.raises(ValueError, match="learning_rate"):
+        make_model(learning_rate=1.5)
+    with pytest.raises(ValueError, match="tau"):
+        make_model(tau=float("nan"))
+    with pytest.raises(TypeError, match="post_exploration_rule"):
+        make_model(post_exploration_rule=0.5)
+    with pytest.raises(ValueError, match="goal_of_state"):
+        TabularGoalEnv(ChainEnv(), goal_of_state=np.zeros(3, dtype=int))
+    with pytest.raises(TypeError, match="Dict observation space"):
+        TabularGoalPolicy(spaces.Discrete(4), spaces.Discrete(2))
+
+
+def test_tabular_goal_env_passes_env_checkers_and_rewards_eq_6_6() -> None:
+    env = TabularGoalEnv(gym.make("GCRL/FourRoomsTabular-v0"))
+    gym_check_env(env, skip_render_check=True)
+    sb3_check_env(TabularGoalEnv(gym.make("GCRL/FourRoomsTabular-v0")), warn=False)
+    np.testing.assert_array_equal(env.compute_reward(np.array([3, 4, 5]), np.array([3, 3, 5]), None), [1, 0, 1])
+    obs, _ = env.reset(options={"goal": 42})
+    assert obs["desired_goal"] == 42 and obs["achieved_goal"] == obs["observation"] // 4
+
+
+def test_minigrid_reachable_cells_exclude_walls_and_lava() -> None:
+    four_rooms = gym.make("GCRL/FourRoomsTabular-v0")
+    cells = minigrid_reachable_cells(four_rooms)
+    grid = four_rooms.unwrapped.grid
+    width = four_rooms.unwrapped.width
+    assert all(grid.get(c % width, c // width) is None or grid.get(c % width, c // width).type == "goal" for c in cells)
+    assert 200 < cells.size < 17 * 17  # four rooms minus walls
+    lava = gym.make("GCRL/LavaGapTabular-v0")
+    lava_cells = minigrid_reachable_cells(lava)
+    w = lava.unwrapped.width
+    types = [getattr(lava.unwrapped.grid.get(c % w, c // w), "type", "empty") for c in lava_cells]
+    assert "lava" not in types and "wall" not in types and "goal" in types
+
+
+def test_all_goals_evaluation_with_a_hand_made_table() -> None:
+    model = make_model()
+    q = model.policy.q
+    q[:, 3:, 1] = 1.0  # goals 3..5: go right (reached); goals 0..2 keep all-zero rows -> action 0 (left)
+    env = TabularGoalEnv(ChainEnv())
+    success = evaluate_all_goals(model, env, goals=np.arange(6))
+    # goal 0: "left" at the start stays on 0, which reaches it; goals 1, 2: the agent sits at 0 in a loop, stopped
+    np.testing.assert_array_equal(success, [True, False, False, True, True, True])
+
+
+def test_imgep_learns_four_rooms_and_logs_metrics() -> None:
+    env = gym.make("GCRL/FourRoomsTabular-v0")
+    model = TabularIMGEP("TabularGoalPolicy", env, seed=0)
+    callback = AllGoalsEvalCallback(TabularGoalEnv(gym.make("GCRL/FourRoomsTabular-v0")), eval_freq=10_000)
+    model.learn(20_000, callback=callback, log_interval=50)
+    assert callback.success_rates[0] < 0.01  # untrained greedy policy only "reaches" its start cell
+    assert callback.success_rates[-1] > 0.5
+    assert model.coverage() > 0.5 and model.visitation_entropy() > 3.0
