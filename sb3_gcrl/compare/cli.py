@@ -1,0 +1,172 @@
+"""``sb3-gcrl compare``: command line of :func:`sb3_gcrl.compare.compare` (also ``python -m sb3_gcrl.compare.cli``).
+
+With no arguments it runs the ``quick`` preset (the README's main command).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+#: exit codes
+EXIT_OK, EXIT_RUNS_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+def _hyperparam(text: str) -> tuple[str, Any]:
+    key, sep, value = text.partition(":")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected key:value (e.g. learning_starts:100), got {text!r}")
+    return key, yaml.safe_load(value)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (``sb3-gcrl compare --help``)."""
+    from sb3_gcrl.compare.presets import DEFAULT_PRESET
+
+    parser = argparse.ArgumentParser(
+        prog="sb3-gcrl compare",
+        description="Compare methods x envs x seeds: parallel runs, evaluation curves, IQM table, plots, report. "
+        f"Without arguments: the '{DEFAULT_PRESET}' preset.",
+        epilog="A method is ALGO (hyperparameters found in zoo_configs/ALGO*.yml, then RL-Zoo's own), "
+        "ALGO:CONFIG (a .yml path or a zoo_configs/ stem) or LABEL=ALGO[:CONFIG]. Re-running the same command "
+        "resumes: finished runs are kept and skipped.",
+    )
+    parser.add_argument("--preset", help="start from a named comparison (see --list-presets); options override it")
+    parser.add_argument("--list-presets", action="store_true", help="print the presets and exit")
+    parser.add_argument("--list-methods", action="store_true", help="print algorithms and zoo config files, exit")
+    parser.add_argument("-m", "--methods", nargs="+", help="methods to compare")
+    parser.add_argument("-e", "--envs", nargs="+", help="gymnasium env ids")
+    seeds = parser.add_mutually_exclusive_group()
+    seeds.add_argument("--seeds", nargs="+", type=int, help="run seeds (default 0 1 2)")
+    seeds.add_argument("--n-seeds", type=int, help="use seeds 0 .. N-1")
+    parser.add_argument("-n", "--n-timesteps", type=int, help="training budget per run (default: the config's)")
+    parser.add_argument("--eval-freq", type=int, help="env steps between evaluations (default: budget / 20)")
+    parser.add_argument("--eval-episodes", type=int, help="deterministic episodes per evaluation (default 5)")
+    parser.add_argument("-o", "--output", "--out", type=Path, help="output folder (default results/<preset>)")
+    parser.add_argument("--backend", choices=["local", "ray"], default="local", help="where runs execute")
+    parser.add_argument("-w", "--workers", "--n-workers", type=int, help="parallel runs (default: cores)")
+    parser.add_argument("--ray-address", help="Ray cluster address (default: start a local Ray instance)")
+    parser.add_argument(
+        "--hyperparams", nargs="+", type=_hyperparam, default=[], metavar="KEY:VALUE",
+        help="overrides for every method, values in YAML (learning_starts:100 'policy_kwargs:dict(net_arch=[64])')",
+    )  # fmt: skip
+    parser.add_argument("--gym-packages", nargs="+", default=[], help="modules to import (register extra envs)")
+    parser.add_argument("--config-dir", type=Path, help="folder of zoo configs for bare method names")
+    parser.add_argument("--overwrite", action="store_true", help="redo finished runs whose settings changed")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--save-models", action="store_true", help="save each trained model in its run folder")
+    parser.add_argument("--final-window", type=int, default=1, help="evaluations averaged into the final score")
+    parser.add_argument("--solve-threshold", type=float, help="level counted as solved (default 0.9 success)")
+    parser.add_argument("--title", help="report title")
+    return parser
+
+
+def _print_presets() -> None:
+    from sb3_gcrl.compare.presets import PRESETS
+
+    for name, preset in PRESETS.items():
+        print(f"{name}: {preset.description}")
+        print(
+            f"    methods {' '.join(preset.methods)} | envs {' '.join(preset.envs)} | seeds {len(preset.seeds)} | "
+            f"{preset.n_timesteps:,} steps, eval every {preset.eval_freq:,}"
+        )
+        if preset.thesis:
+            print(f"    thesis: {preset.thesis}")
+
+
+def _print_methods(config_dir: Path) -> None:
+    from sb3_gcrl.compare.methods import available_algorithms, config_env_ids
+    from sb3_gcrl.compare.run import prepare_process
+
+    prepare_process()
+    print("algorithms:", " ".join(available_algorithms()))
+    print(f"zoo configs in {config_dir}:")
+    for config in sorted(config_dir.glob("*.yml")):
+        print(f"  {config.stem}: {', '.join(config_env_ids(config))}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``sb3-gcrl compare``.
+
+    :param argv: arguments without the program name (default ``sys.argv[1:]``).
+    :return: 0 when every run finished, 1 when some failed, 2 on bad arguments, 130 when interrupted.
+    """
+    from sb3_gcrl.cli import ZOO_CONFIGS_DIR
+    from sb3_gcrl.compare.presets import DEFAULT_PRESET, PRESETS
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    config_dir = args.config_dir or ZOO_CONFIGS_DIR
+    if args.list_presets:
+        _print_presets()
+        return EXIT_OK
+    if args.list_methods:
+        _print_methods(config_dir)
+        return EXIT_OK
+
+    preset_name = args.preset or (DEFAULT_PRESET if not (args.methods or args.envs) else None)
+    if preset_name is not None and preset_name not in PRESETS:
+        parser.error(f"unknown preset {preset_name!r}; choose one of {sorted(PRESETS)}")
+    preset = PRESETS.get(preset_name) if preset_name else None
+    methods = args.methods or (preset.methods if preset else None)
+    envs = args.envs or (preset.envs if preset else None)
+    if not methods or not envs:
+        parser.error("give both --methods and --envs (or a --preset)")
+    seeds = (
+        args.seeds or (list(range(args.n_seeds)) if args.n_seeds else None) or (preset.seeds if preset else (0, 1, 2))
+    )
+    hyperparams = {**(preset.hyperparams if preset else {}), **dict(args.hyperparams)}
+
+    from sb3_gcrl.compare.runner import compare
+
+    command = "sb3-gcrl compare" + ("" if not argv else " " + shlex.join(argv))
+    try:
+        result = compare(
+            methods,
+            envs,
+            seeds=seeds,
+            n_timesteps=args.n_timesteps or (preset.n_timesteps if preset else None),
+            eval_freq=args.eval_freq or (preset.eval_freq if preset else None),
+            n_eval_episodes=args.eval_episodes or (preset.n_eval_episodes if preset else 5),
+            output=args.output or Path("results") / (preset_name or "comparison"),
+            backend=args.backend,
+            n_workers=args.workers,
+            ray_address=args.ray_address,
+            hyperparams=hyperparams,
+            gym_packages=args.gym_packages,
+            config_dir=config_dir,
+            overwrite=args.overwrite,
+            progress=not args.no_progress,
+            save_models=args.save_models,
+            final_window=args.final_window,
+            solve_threshold=args.solve_threshold,
+            title=args.title or (preset.description if preset else None),
+            command=command,
+        )
+    except KeyboardInterrupt:
+        output = args.output or Path("results") / (preset_name or "comparison")
+        print(
+            f"\ninterrupted: finished runs are kept in {output}; run the same command again to resume", file=sys.stderr
+        )
+        return EXIT_INTERRUPTED
+    except (ValueError, FileExistsError, ImportError) as error:
+        print(f"sb3-gcrl compare: error: {error}", file=sys.stderr)
+        return EXIT_USAGE
+
+    summary = result.summary
+    print(summary.table)
+    print(
+        f"\n{len(result.specs)} runs ({result.n_skipped} resumed, {len(summary.failed)} failed) in "
+        f"{result.wall_time_s:.0f} s; report: {result.output / 'report.md'}, plot: {result.output / 'curves.png'}"
+    )
+    return EXIT_RUNS_FAILED if summary.failed else EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,197 @@
+"""Turn the finished runs of a comparison into tables, a curves figure and a Markdown report."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from sb3_gcrl.analysis.curves import aggregate_curves, choose_metric, load_curves
+from sb3_gcrl.analysis.plots import METRIC_LABELS, plot_learning_curves
+from sb3_gcrl.analysis.statistics import aggregate_scores, probability_of_improvement, run_scores
+from sb3_gcrl.compare.run import RunSpec
+from sb3_gcrl.compare.storage import EVALUATIONS_FILE, LOG_FILE, atomic_write_text, read_run_record
+
+#: default level of ``success_rate`` that counts as solved (for the "solved" columns)
+SUCCESS_THRESHOLD = 0.9
+
+
+@dataclass
+class Summary:
+    """Analysed results of a comparison.
+
+    :param curves: every evaluation of every finished run (tidy).
+    :param scores: per-run final score, AUC, step solved.
+    :param summary: per (env, method) aggregates (see :func:`~sb3_gcrl.analysis.statistics.aggregate_scores`).
+    :param metrics: metric used per env.
+    :param failed: ``(spec, error, log path)`` of the runs that failed.
+    :param table: the printed Markdown table.
+    """
+
+    curves: pd.DataFrame
+    scores: pd.DataFrame
+    summary: pd.DataFrame
+    metrics: dict[str, str]
+    failed: list[tuple[RunSpec, str, Path]]
+    table: str
+
+
+def _format_interval(value: float, low: float, high: float, digits: int) -> str:
+    if math.isnan(value):
+        return "n/a"
+    return f"{value:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def format_table(summary: pd.DataFrame, metrics: dict[str, str]) -> str:
+    """The aggregate table as Markdown (readable in a terminal too).
+
+    :param summary: table from :func:`~sb3_gcrl.analysis.statistics.aggregate_scores`.
+    :param metrics: metric per env.
+    :return: the table text.
+    """
+    header = ["env", "method", "runs", "metric", "final", "AUC", "estimator", "solved", "median steps to solve"]
+    lines = []
+    for row in summary.itertuples(index=False):
+        metric = metrics[row.env]
+        digits = 2 if metric == "success_rate" else 1
+        solved_at = "-" if math.isnan(row.median_solved_at) else f"{row.median_solved_at:,.0f}"
+        lines.append(
+            [
+                row.env,
+                row.method,
+                f"{row.n_runs}/{row.n_planned}",
+                METRIC_LABELS.get(metric, metric),
+                _format_interval(row.final, row.final_low, row.final_high, digits),
+                _format_interval(row.auc, row.auc_low, row.auc_high, digits),
+                "IQM [95% CI]" if row.estimator == "IQM" else "mean [min, max]",
+                f"{row.n_solved}/{row.n_runs}" if metric == "success_rate" else "-",
+                solved_at,
+            ]
+        )
+    widths = [max(len(str(cell)) for cell in column) for column in zip(header, *lines)]
+
+    def render(cells: list[str]) -> str:
+        return "| " + " | ".join(str(cell).ljust(width) for cell, width in zip(cells, widths)) + " |"
+
+    return "\n".join([render(header), render(["-" * width for width in widths]), *map(render, lines)])
+
+
+def summarize(
+    output: Path,
+    specs: list[RunSpec],
+    final_window: int = 1,
+    solve_threshold: float | None = None,
+    min_runs_for_iqm: int = 3,
+) -> Summary:
+    """Load the planned runs from ``output`` and compute curves, per-run scores and aggregates.
+
+    :param output: comparison folder.
+    :param specs: the runs of this comparison (others lying in the folder are ignored).
+    :param final_window: evaluations averaged into the final score.
+    :param solve_threshold: level counted as solved (default: :data:`SUCCESS_THRESHOLD` for success rates,
+        none for returns).
+    :param min_runs_for_iqm: below this many runs per method, mean and range replace IQM and CI.
+    :return: the summary.
+    """
+    finished, failed = [], []
+    for spec in specs:
+        run_dir = output / "runs" / spec.relative_dir
+        record = read_run_record(run_dir)
+        if record is not None and record["status"] == "finished":
+            finished.append((spec.env_id, spec.method, spec.seed, run_dir / EVALUATIONS_FILE))
+        else:
+            error = "never ran (interrupted?)" if record is None else record.get("error", "")
+            failed.append((spec, error, run_dir / LOG_FILE))
+    curves = load_curves(finished)
+    planned = pd.Series([(s.env_id, s.method) for s in specs]).value_counts().to_dict()
+    scores, summaries, metrics = [], [], {}
+    for env_id, env_curves in curves.groupby("env", sort=False):
+        metric = metrics[env_id] = choose_metric(env_curves)
+        threshold = (
+            solve_threshold
+            if solve_threshold is not None
+            else (SUCCESS_THRESHOLD if metric == "success_rate" else None)
+        )
+        env_scores = run_scores(env_curves, metric, final_window, threshold)
+        scores.append(env_scores.assign(metric=metric))
+        summaries.append(aggregate_scores(env_scores, min_runs_for_iqm, planned_runs=planned))
+    scores_table = pd.concat(scores, ignore_index=True) if scores else pd.DataFrame()
+    summary = pd.concat(summaries, ignore_index=True) if summaries else pd.DataFrame()
+    table = format_table(summary, metrics) if len(summary) else "(no finished runs)"
+    return Summary(curves, scores_table, summary, metrics, failed, table)
+
+
+def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, wall_time_s: float) -> None:
+    """Write ``curves.csv``, ``scores.csv``, ``summary.csv``, ``curves.png`` and ``report.md`` into ``output``.
+
+    :param output: comparison folder.
+    :param summary: from :func:`summarize`.
+    :param title: report and figure title.
+    :param settings_md: Markdown describing the settings (methods, configs, budgets).
+    :param wall_time_s: wall time of this invocation.
+    """
+    atomic_write_text(output / "curves.csv", summary.curves.to_csv(index=False))
+    atomic_write_text(output / "scores.csv", summary.scores.to_csv(index=False))
+    atomic_write_text(output / "summary.csv", summary.summary.to_csv(index=False))
+    figure_md = ""
+    if len(summary.curves):
+        aggregated = pd.concat(
+            [
+                aggregate_curves(group, summary.metrics[env_id])
+                for env_id, group in summary.curves.groupby("env", sort=False)
+            ]
+        )
+        plot_learning_curves(aggregated, summary.metrics, path=output / "curves.png", title=title)
+        figure_md = "![learning curves](curves.png)\n"
+    lines = [
+        f"# {title}",
+        "",
+        settings_md,
+        "## Results",
+        "",
+        summary.table,
+        "",
+        figure_md,
+        "*final*: metric at the last evaluation (mean of the last evaluations when `--final-window` > 1); "
+        "*AUC*: average level over training (area under the evaluation curve / steps). With >= 3 runs per method "
+        "the table gives the interquartile mean (IQM) and its 95% stratified-bootstrap confidence interval "
+        "(rliable, 2000 resamples); with fewer, the mean and the [min, max] of the runs. Curves: mean over runs "
+        "with a 95% percentile-bootstrap band. *solved*: runs whose success rate reached "
+        f"{SUCCESS_THRESHOLD:g} (or `--solve-threshold`) at some evaluation.",
+        "",
+    ]
+    lines += _improvement_section(summary)
+    if summary.failed:
+        lines += ["## Failed or missing runs", ""]
+        for spec, error, log in summary.failed:
+            last = error.strip().splitlines()[-1] if error.strip() else "unknown error"
+            lines.append(f"- {spec.env_id} / {spec.method} / seed {spec.seed}: `{last}` (log: `{log}`)")
+        lines.append("")
+    lines.append(f"Wall time of this invocation: {wall_time_s:.0f} s.")
+    atomic_write_text(output / "report.md", "\n".join(lines) + "\n")
+
+
+def _improvement_section(summary: Summary) -> list[str]:
+    """Pairwise probability of improvement on the final score (Agarwal et al., 2021), per env."""
+    lines = []
+    for env_id, env_scores in summary.scores.groupby("env", sort=False) if len(summary.scores) else []:
+        methods = list(dict.fromkeys(env_scores["method"]))
+        for first, second in itertools.combinations(methods, 2):
+            x = env_scores.loc[env_scores["method"] == first, "final"].to_numpy()
+            y = env_scores.loc[env_scores["method"] == second, "final"].to_numpy()
+            lines.append(f"| {env_id} | {first} > {second} | {probability_of_improvement(x, y):.2f} |")
+    if not lines:
+        return []
+    return [
+        "### Probability of improvement (final score)",
+        "",
+        "P(a run of the first method ends higher than a run of the second; ties count 1/2).",
+        "",
+        "| env | comparison | P |",
+        "| --- | --- | --- |",
+        *lines,
+        "",
+    ]

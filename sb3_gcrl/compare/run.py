@@ -1,0 +1,189 @@
+"""One run of a comparison (method x env x seed), built by RL-Zoo's own ``ExperimentManager``.
+
+A run is exactly what ``rl_zoo3 train --algo ALGO --env ENV -conf CONFIG --seed SEED -n BUDGET`` builds
+(hyperparameters, ``env_wrapper``, ``normalize``, YAML ``callback``s...), except that the zoo's
+``EvalCallback`` is replaced by :class:`~sb3_gcrl.compare.evaluation.EvaluationRecorder` (evaluation
+schedule in env steps, success rate, rows kept in memory for the per-run CSV).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib
+import math
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+from huggingface_sb3 import EnvironmentName
+
+#: the evaluation env is seeded away from the training env (RL-Zoo seeds both with the run seed)
+EVAL_SEED_OFFSET = 10_000
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything that defines a run; two runs with equal specs give identical results (same machine).
+
+    :param method: method label (tables, plots, folder name).
+    :param algo: algorithm name (key of ``rl_zoo3.utils.ALGOS`` once our algorithms are registered).
+    :param config: path of the RL-Zoo hyperparameter file.
+    :param config_digest: hash of that file's content (a changed file invalidates finished runs).
+    :param env_id: gymnasium id.
+    :param seed: run seed (model, training env; evaluation env gets ``seed + EVAL_SEED_OFFSET``).
+    :param n_timesteps: training budget in env steps.
+    :param eval_freq: env steps between evaluations.
+    :param n_eval_episodes: deterministic episodes per evaluation.
+    :param hyperparams: overrides applied on top of the config (like ``rl_zoo3 train --hyperparams``).
+    :param gym_packages: modules imported before building envs (they register extra envs).
+    :param save_model: also save the trained model (``zoo/`` folder of the run).
+    """
+
+    method: str
+    algo: str
+    config: str
+    config_digest: str
+    env_id: str
+    seed: int
+    n_timesteps: int
+    eval_freq: int
+    n_eval_episodes: int = 5
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+    gym_packages: tuple[str, ...] = ()
+    save_model: bool = False
+
+    @property
+    def env_slug(self) -> str:
+        """Env id usable as a folder name (``GCRL/GrowingTree-v0`` -> ``GCRL-GrowingTree-v0``)."""
+        return str(EnvironmentName(self.env_id))
+
+    @property
+    def relative_dir(self) -> Path:
+        """Folder of the run inside the comparison's ``runs/`` folder."""
+        return Path(self.env_slug) / self.method / f"seed_{self.seed}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly form (stored in ``run.json``; compared on resume)."""
+        data = asdict(self)
+        data["gym_packages"] = list(self.gym_packages)
+        return data
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RunSpec:
+        """Inverse of :meth:`to_dict`."""
+        return cls(**{**data, "gym_packages": tuple(data.get("gym_packages", ()))})
+
+
+@dataclass
+class RunResult:
+    """Outcome of a run: ``status`` is ``"finished"`` or ``"failed"`` (then ``error`` holds the traceback)."""
+
+    spec: RunSpec
+    status: str
+    evaluations: list[dict[str, float]] = field(default_factory=list)
+    wall_time_s: float = math.nan
+    error: str = ""
+    log: str = ""
+
+
+def prepare_process(gym_packages: tuple[str, ...] = ()) -> None:
+    """Set up a worker process: one torch thread, our envs and algorithms registered, extra gym packages.
+
+    :param gym_packages: modules to import (they register their envs on import).
+    """
+    import torch
+
+    torch.set_num_threads(1)
+    import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
+    from sb3_gcrl.cli import register_zoo_algorithms
+
+    register_zoo_algorithms()
+    for module in gym_packages:
+        importlib.import_module(module)
+
+
+def _zoo_args(spec: RunSpec, log_folder: Path) -> argparse.Namespace:
+    """The ``args`` RL-Zoo stores in ``args.yml``: the equivalent ``rl_zoo3 train`` command line."""
+    return argparse.Namespace(
+        algo=spec.algo,
+        env=spec.env_id,
+        conf_file=spec.config,
+        seed=spec.seed,
+        n_timesteps=spec.n_timesteps,
+        hyperparams=spec.hyperparams,
+        gym_packages=list(spec.gym_packages),
+        log_folder=str(log_folder),
+        eval_freq=-1,
+    )
+
+
+def execute_run(
+    spec: RunSpec,
+    run_dir: Path,
+    log_file: TextIO,
+    report_progress: Callable[[int], None] | None = None,
+) -> RunResult:
+    """Train and evaluate one run; never raises for a failure of the run itself (it is returned as failed).
+
+    :param spec: the run.
+    :param run_dir: folder for RL-Zoo's own outputs (``zoo/``: config.yml, monitor.csv, model).
+    :param log_file: receives the run's stdout/stderr.
+    :param report_progress: called with env-step increments (progress bars).
+    :return: the run's result with its evaluation rows.
+    """
+    start = time.perf_counter()
+    recorder = None
+    try:
+        with contextlib.redirect_stdout(log_file), contextlib.redirect_stderr(log_file):
+            prepare_process(spec.gym_packages)
+            from rl_zoo3.exp_manager import ExperimentManager
+
+            from sb3_gcrl.compare.evaluation import EvaluationRecorder
+
+            log_folder = run_dir / "zoo"
+            exp_manager = ExperimentManager(
+                _zoo_args(spec, log_folder),
+                spec.algo,
+                spec.env_id,
+                str(log_folder),
+                n_timesteps=spec.n_timesteps,
+                eval_freq=-1,  # replaced by the EvaluationRecorder below
+                hyperparams=dict(spec.hyperparams),
+                seed=spec.seed,
+                verbose=0,
+                log_interval=-1,  # rl_zoo3 train's default (0 would mean "log every 0 episodes")
+                config=spec.config,
+                device="cpu",
+            )
+            setup = exp_manager.setup_experiment()
+            assert setup is not None  # None only in hyperparameter-optimisation mode
+            model, _ = setup
+            eval_env = exp_manager.create_envs(1, eval_env=True)
+            eval_env.seed(spec.seed + EVAL_SEED_OFFSET)
+            recorder = EvaluationRecorder(
+                eval_env,
+                eval_freq=spec.eval_freq,
+                n_eval_episodes=spec.n_eval_episodes,
+                report_progress=report_progress,
+                progress_every=max(1, spec.n_timesteps // 100),
+                verbose=1,
+            )
+            exp_manager.callbacks.append(recorder)
+            exp_manager.learn(model)
+            if model.num_timesteps < spec.n_timesteps:
+                # RL-Zoo's learn() swallows KeyboardInterrupt: never report a cut run as finished
+                raise RuntimeError(f"training stopped at {model.num_timesteps} of {spec.n_timesteps} steps")
+            recorder.evaluate_final()
+            eval_env.close()
+            if spec.save_model:
+                exp_manager.save_trained_model(model)
+        return RunResult(spec, "finished", recorder.records, time.perf_counter() - start)
+    except Exception:
+        error = traceback.format_exc()
+        print(error, file=log_file)
+        records = recorder.records if recorder is not None else []
+        return RunResult(spec, "failed", records, time.perf_counter() - start, error=error)

@@ -1,0 +1,278 @@
+"""``compare()``: methods x envs x seeds, run in parallel, resumable, analysed into a report."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sb3_gcrl.cli import ZOO_CONFIGS_DIR
+from sb3_gcrl.compare.backends import Backend, Job, LocalProcessBackend, RayBackend
+from sb3_gcrl.compare.methods import Method, check_env_id, file_digest, parse_method
+from sb3_gcrl.compare.report import Summary, summarize, write_outputs
+from sb3_gcrl.compare.run import RunSpec, prepare_process
+from sb3_gcrl.compare.storage import atomic_write_text, is_finished
+
+#: evaluations per run when ``eval_freq`` is not given
+DEFAULT_N_EVALUATIONS = 20
+
+
+@dataclass
+class ComparisonResult:
+    """What :func:`compare` did.
+
+    :param output: the comparison folder.
+    :param specs: every run of the comparison.
+    :param n_skipped: runs already finished before this invocation (resumed).
+    :param summary: tables and failures (see :class:`~sb3_gcrl.compare.report.Summary`).
+    :param wall_time_s: wall time of this invocation.
+    """
+
+    output: Path
+    specs: list[RunSpec]
+    n_skipped: int
+    summary: Summary
+    wall_time_s: float
+
+
+class ProgressDisplay:
+    """A tqdm bar over the env steps of all runs to do, with counts of running/finished/failed runs."""
+
+    def __init__(self, total_steps: int, n_runs: int, enabled: bool = True) -> None:
+        from tqdm.auto import tqdm
+
+        self.bar = tqdm(total=total_steps, unit="step", unit_scale=True, disable=not enabled, dynamic_ncols=True)
+        self.n_runs = n_runs
+        self.running = self.finished = self.failed = 0
+        self._refresh()
+
+    def _refresh(self) -> None:
+        self.bar.set_description(
+            f"runs: {self.finished} done, {self.failed} failed, {self.running} running, of {self.n_runs}"
+        )
+
+    def on_start(self, spec: RunSpec) -> None:
+        self.running += 1
+        self._refresh()
+
+    def on_progress(self, spec: RunSpec, steps: int) -> None:
+        self.bar.update(steps)
+
+    def on_end(self, spec: RunSpec, status: str) -> None:
+        self.running -= 1
+        if status == "finished":
+            self.finished += 1
+        else:
+            self.failed += 1
+            self.bar.write(f"run failed: {spec.env_id} / {spec.method} / seed {spec.seed} (see its train.log)")
+        self._refresh()
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _config_budget(config: Path, env_id: str) -> int:
+    """``n_timesteps`` of the config section RL-Zoo would use for ``env_id``."""
+    if config.suffix == ".py":
+        namespace: dict[str, Any] = {}
+        exec(config.read_text(), namespace)
+        sections = namespace["hyperparams"]
+    else:
+        sections = yaml.safe_load(config.read_text())
+    section = sections.get(env_id, sections.get("default", {}))
+    if "n_timesteps" not in section:
+        raise ValueError(f"{config} gives no n_timesteps for {env_id}: pass a budget (--n-timesteps)")
+    return int(float(section["n_timesteps"]))
+
+
+def make_backend(backend: Backend | str, n_workers: int | None = None, ray_address: str | None = None) -> Backend:
+    """Backend from its name (``local`` or ``ray``) or as given.
+
+    :param backend: ``"local"``, ``"ray"`` or a :class:`~sb3_gcrl.compare.backends.Backend`.
+    :param n_workers: parallel runs (local) or CPUs of a local Ray instance.
+    :param ray_address: address of a Ray cluster (``auto``, ``ray://host:10001``).
+    """
+    if isinstance(backend, Backend):
+        return backend
+    if backend == "local":
+        return LocalProcessBackend(n_workers)
+    if backend == "ray":
+        return RayBackend(address=ray_address, num_cpus=n_workers)
+    raise ValueError(f"Unknown backend {backend!r}; choose 'local' or 'ray'")
+
+
+def plan_runs(
+    methods: Sequence[Method],
+    envs: Sequence[str],
+    seeds: Sequence[int],
+    n_timesteps: int | None,
+    eval_freq: int | None,
+    n_eval_episodes: int,
+    hyperparams: dict[str, Any],
+    gym_packages: Sequence[str],
+    config_dir: Path,
+    save_models: bool = False,
+) -> list[RunSpec]:
+    """Every run (env-major, then method, then seed), with its config resolved; raises before anything runs.
+
+    :raises ValueError: a method has no hyperparameters for an env (the message lists what it covers).
+    """
+    specs = []
+    for env_id in envs:
+        for method in methods:
+            config = method.config_for(env_id, config_dir)
+            budget = n_timesteps if n_timesteps is not None else _config_budget(config, env_id)
+            frequency = eval_freq if eval_freq is not None else max(1, budget // DEFAULT_N_EVALUATIONS)
+            specs.extend(
+                RunSpec(
+                    method=method.label,
+                    algo=method.algo,
+                    config=str(config),
+                    config_digest=file_digest(config),
+                    env_id=env_id,
+                    seed=int(seed),
+                    n_timesteps=budget,
+                    eval_freq=frequency,
+                    n_eval_episodes=n_eval_episodes,
+                    hyperparams=dict(hyperparams),
+                    gym_packages=tuple(gym_packages),
+                    save_model=save_models,
+                )
+                for seed in seeds
+            )
+    return specs
+
+
+def _settings_markdown(specs: list[RunSpec], backend: Backend, command: str | None) -> str:
+    methods = {}
+    for spec in specs:
+        methods.setdefault(spec.method, (spec.algo, set()))[1].add(spec.config)
+    lines = ["## Settings", ""]
+    if command:
+        lines += [f"Command: `{command}`", ""]
+    lines += ["| method | algorithm | RL-Zoo config |", "| --- | --- | --- |"]
+    lines += [f"| {name} | {algo} | {', '.join(sorted(configs))} |" for name, (algo, configs) in methods.items()]
+    first = specs[0]
+    budgets = sorted({spec.n_timesteps for spec in specs})
+    frequencies = sorted({spec.eval_freq for spec in specs})
+    lines += [
+        "",
+        f"- envs: {', '.join(dict.fromkeys(spec.env_id for spec in specs))}",
+        f"- seeds: {', '.join(str(s) for s in dict.fromkeys(spec.seed for spec in specs))}",
+        f"- budget: {', '.join(f'{b:,}' for b in budgets)} env steps per run; evaluation every "
+        f"{', '.join(f'{f:,}' for f in frequencies)} steps, {first.n_eval_episodes} deterministic episodes",
+        f"- hyperparameter overrides: {first.hyperparams or 'none'}",
+        f"- backend: {type(backend).__name__}",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def compare(
+    methods: Sequence[str | Method],
+    envs: Sequence[str],
+    seeds: Sequence[int] = (0, 1, 2),
+    n_timesteps: int | None = None,
+    eval_freq: int | None = None,
+    n_eval_episodes: int = 5,
+    output: str | Path = "results/comparison",
+    backend: Backend | str = "local",
+    n_workers: int | None = None,
+    ray_address: str | None = None,
+    hyperparams: dict[str, Any] | None = None,
+    gym_packages: Sequence[str] = (),
+    config_dir: str | Path = ZOO_CONFIGS_DIR,
+    overwrite: bool = False,
+    progress: bool = True,
+    save_models: bool = False,
+    final_window: int = 1,
+    solve_threshold: float | None = None,
+    title: str | None = None,
+    command: str | None = None,
+) -> ComparisonResult:
+    """Run methods x envs x seeds (skipping runs finished earlier in ``output``) and write the analysis.
+
+    Output files (see :mod:`sb3_gcrl.compare.storage`): per-run ``evaluations.csv``, ``curves.csv``,
+    ``scores.csv``, ``summary.csv``, ``curves.png`` and ``report.md``.
+
+    :param methods: method specs (``ALGO``, ``ALGO:CONFIG``, ``LABEL=ALGO[:CONFIG]``) or :class:`Method` objects.
+    :param envs: gymnasium ids.
+    :param seeds: run seeds.
+    :param n_timesteps: budget per run; default: each config's ``n_timesteps`` for the env.
+    :param eval_freq: env steps between evaluations; default: budget / 20.
+    :param n_eval_episodes: deterministic episodes per evaluation.
+    :param output: comparison folder (created; re-using it resumes).
+    :param backend: ``"local"`` (process pool), ``"ray"`` or a backend object.
+    :param n_workers: parallel runs (default: available cores).
+    :param ray_address: Ray cluster address (``--backend ray``); default: a local Ray instance.
+    :param hyperparams: overrides for every method (as ``rl_zoo3 train --hyperparams``).
+    :param gym_packages: modules to import in every process (they register extra envs).
+    :param config_dir: folder of the zoo configs searched for bare method names.
+    :param overwrite: redo finished runs whose settings differ (else that is an error).
+    :param progress: show the progress bar.
+    :param save_models: save each trained model in its run folder.
+    :param final_window: evaluations averaged into the final score.
+    :param solve_threshold: level counted as solved (default 0.9 for success rates).
+    :param title: report title.
+    :param command: command line to quote in the report.
+    :return: the result, with the summary tables.
+    """
+    start = time.perf_counter()
+    if not methods or not envs or not seeds:
+        raise ValueError("compare needs at least one method, one env and one seed")
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"seeds must be distinct, got {list(seeds)}")
+    for name, value in (("n_timesteps", n_timesteps), ("eval_freq", eval_freq)):
+        if value is not None and value < 1:
+            raise ValueError(f"{name} must be >= 1, got {value}")
+    if n_eval_episodes < 1:
+        raise ValueError(f"n_eval_episodes must be >= 1, got {n_eval_episodes}")
+    config_dir = Path(config_dir)
+    prepare_process(tuple(gym_packages))  # registers envs and algorithms here too, for the checks below
+    parsed = [m if isinstance(m, Method) else parse_method(m, config_dir) for m in methods]
+    labels = [m.label for m in parsed]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"Method labels must be distinct, got {labels}; name them with LABEL=ALGO[:CONFIG]")
+    for env_id in envs:
+        check_env_id(env_id)
+    specs = plan_runs(
+        parsed, envs, seeds, n_timesteps, eval_freq, n_eval_episodes, hyperparams or {}, gym_packages, config_dir,
+        save_models,
+    )  # fmt: skip
+
+    output = Path(output)
+    jobs: list[Job] = []
+    for spec in specs:
+        run_dir = output / "runs" / spec.relative_dir
+        try:
+            if is_finished(run_dir, spec):
+                continue
+        except FileExistsError:
+            if not overwrite:
+                raise
+        jobs.append((spec, run_dir))
+    n_skipped = len(specs) - len(jobs)
+    backend = make_backend(backend, n_workers, ray_address)
+    settings = {"command": command, "specs": [spec.to_dict() for spec in specs]}
+    atomic_write_text(output / "comparison.json", json.dumps(settings, indent=2) + "\n")
+    if n_skipped and progress:
+        print(f"{n_skipped} of {len(specs)} runs already finished in {output}: skipped", file=sys.stderr)
+
+    if jobs:
+        display = ProgressDisplay(sum(spec.n_timesteps for spec, _ in jobs), len(jobs), enabled=progress)
+        try:
+            backend.run(jobs, display)
+        finally:
+            display.close()
+
+    summary = summarize(output, specs, final_window=final_window, solve_threshold=solve_threshold)
+    title = title or f"{' vs '.join(labels)} on {', '.join(envs)}"
+    wall_time = time.perf_counter() - start
+    write_outputs(output, summary, title, _settings_markdown(specs, backend, command), wall_time)
+    return ComparisonResult(output, specs, n_skipped, summary, wall_time)
