@@ -1,0 +1,185 @@
+"""Tabular Q-learning, tabular episodic control and tabular 2M (thesis Sec. 5.5.1)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.env_util import make_vec_env
+
+import sb3_gcrl  # noqa: F401  (registers GCRL/WindyGrid-v0)
+from sb3_gcrl.tabular import (
+    TabularEpisodicControl,
+    TabularQLearning,
+    TabularTwoMemory,
+    q_learning_update,
+)
+from sb3_gcrl.tabular.policies import TabularECPolicy, greedy_actions
+from sb3_gcrl.two_memory import EPISODIC, PARAMETRIC, SourceTaggedReplayBuffer
+from sb3_gcrl.two_memory.episodes import discounted_returns
+
+WINDY = "GCRL/WindyGrid-v0"
+
+
+def windy() -> gym.Env:
+    return gym.make(WINDY)
+
+
+class ChainEnv(gym.Env):
+    """States 0..4, start 0; action 1 moves right, 0 stays; reward -1 per step; terminal at 4 (deterministic)."""
+
+    observation_space = gym.spaces.Discrete(5)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.state = 0
+        return self.state, {}
+
+    def step(self, action):
+        self.state = min(self.state + int(action), 4)
+        return self.state, -1.0, self.state == 4, False, {}
+
+
+def test_q_learning_update_matches_hand_computation():
+    q = np.zeros((3, 2))
+    q[1] = [2.0, 4.0]
+    states, actions = np.array([0, 0, 1]), np.array([1, 1, 0])
+    rewards, next_states, dones = np.array([1.0, 1.0, -1.0]), np.array([1, 1, 2]), np.array([0.0, 0.0, 1.0])
+    td = q_learning_update(q, states, actions, rewards, next_states, dones, learning_rate=0.5, gamma=0.9)
+    # (0, 1): target 1 + 0.9 * 4 = 4.6, TD 4.6 twice (batched from the same table) -> Q = 0 + 0.5 * 9.2
+    np.testing.assert_allclose(td, [4.6, 4.6, -3.0])
+    assert q[0, 1] == pytest.approx(4.6)
+    # (1, 0): terminal, target -1, TD -1 - 2 = -3 -> 2 + 0.5 * -3
+    assert q[1, 0] == pytest.approx(0.5)
+    assert q[1, 1] == 4.0 and q[2].sum() == 0.0
+
+
+def test_ec_update_is_max_of_returns_eq_5_2():
+    policy = TabularECPolicy(gym.spaces.Discrete(3), gym.spaces.Discrete(2), unseen_value=0.0)
+    policy.update_episode(np.array([0, 1]), np.array([1, 0]), np.array([-5.0, -2.0]))
+    policy.update_episode(np.array([0, 1]), np.array([1, 0]), np.array([-7.0, -1.0]))
+    assert policy.ec_table[0, 1] == -5.0  # max(-5, -7): the better return is kept
+    assert policy.ec_table[1, 0] == -1.0
+    np.testing.assert_allclose(policy.q_values(np.array([0])), [[0.0, -5.0]])  # unseen -> unseen_value
+
+
+def test_discounted_returns():
+    np.testing.assert_allclose(discounted_returns(np.array([1.0, 0.0, 2.0]), 0.5), [1.5, 1.0, 2.0])
+
+
+def test_greedy_tie_breaking():
+    values = np.zeros((2000, 3))
+    assert (greedy_actions(values, False) == 0).all()
+    counts = np.bincount(greedy_actions(values, True), minlength=3)
+    assert counts.min() > 500  # uniform over the tied actions
+
+
+def test_episodic_control_learns_chain_exactly():
+    model = TabularEpisodicControl(env=ChainEnv(), gamma=1.0, exploration_initial_eps=0.5, exploration_final_eps=0.5)
+    model.learn(2000)
+    # the best return after moving right from state s is -(4 - s)
+    np.testing.assert_allclose(model.ec_table[np.arange(4), 1], [-4.0, -3.0, -2.0, -1.0])
+    assert (model.predict(np.arange(4), deterministic=True)[0] == 1).all()
+
+
+def test_q_learning_learns_chain():
+    model = TabularQLearning(env=ChainEnv(), gamma=0.9, learning_rate=0.5, train_freq=1, batch_size=8, seed=0)
+    model.learn(1500)
+    assert (model.predict(np.arange(4), deterministic=True)[0] == 1).all()
+    expected = -(1 - 0.9 ** np.arange(4, 0, -1)) / (1 - 0.9)  # V*(s) = -sum_{k<4-s} 0.9^k
+    np.testing.assert_allclose(model.q_table[np.arange(4), 1], expected, atol=1e-3)
+
+
+def test_two_memory_routes_actions_to_the_acting_memory():
+    """With epsilon 0, an EC-run episode acts greedily on the EC table, an RL-run one on the Q-table."""
+    for p_ec, expected_action in ((1.0, 1), (0.0, 0)):
+        model = TabularTwoMemory(
+            env=ChainEnv(), p_ec_schedule=p_ec, exploration_initial_eps=0.0, exploration_final_eps=0.0,
+            learning_starts=10_000, train_freq=10_000, seed=0,
+        )  # fmt: skip
+        model.policy.ec_policy.ec_table[:, 1] = 10.0  # EC prefers "right"
+        model.policy.q_policy.q_table[:, 0] = 10.0  # RL prefers "stay"
+        model.learning_starts = 0
+        model.learn(20)
+        stored_actions = model.replay_buffer.actions[: model.replay_buffer.pos, 0, 0]
+        assert (stored_actions == expected_action).all()
+
+
+@pytest.mark.parametrize("data_sharing", [True, False])
+def test_two_memory_data_sharing_routing(data_sharing):
+    # only RL runs episodes: with sharing the EC table still learns from them, without it stays empty
+    model = TabularTwoMemory(env=ChainEnv(), p_ec_schedule=0.0, data_sharing=data_sharing, seed=0, train_freq=1)
+    model.learn(200)
+    assert model.policy.episode_counts[EPISODIC] == 0 and model.policy.episode_counts[PARAMETRIC] > 0
+    assert np.isfinite(model.ec_table).any() == data_sharing
+    # only EC runs episodes: with sharing the Q-table trains on EC data, without it never trains
+    model = TabularTwoMemory(env=ChainEnv(), p_ec_schedule=1.0, data_sharing=data_sharing, seed=0, train_freq=1)
+    model.learn(200)
+    buffer = model.replay_buffer
+    assert isinstance(buffer, SourceTaggedReplayBuffer)
+    assert buffer.source_fraction(EPISODIC) == 1.0
+    assert (buffer.n_sampleable() > 0) == data_sharing
+    assert (np.abs(model.q_table).sum() > 0) == data_sharing
+
+
+def test_two_memory_evaluation_memory_eq_5_6():
+    model = TabularTwoMemory(env=ChainEnv(), seed=0)
+    model.policy.ec_policy.ec_table[:, 1] = 10.0
+    model.policy.q_policy.q_table[:, 0] = 10.0
+    states = np.arange(4)
+    windows = model.policy.score_windows
+    windows.push(EPISODIC, -4.0)
+    assert (model.predict(states, deterministic=True)[0] == 1).all()  # only EC has a score
+    windows.push(PARAMETRIC, -4.0)
+    assert (model.predict(states, deterministic=True)[0] == 0).all()  # tie -> RL (s_rl >= s_ec)
+    windows.push(EPISODIC, -2.0)
+    assert (model.predict(states, deterministic=True)[0] == 1).all()  # s_ec = -3 > s_rl = -4
+
+
+@pytest.mark.parametrize("cls", [TabularQLearning, TabularEpisodicControl, TabularTwoMemory])
+def test_save_load_round_trip(cls, tmp_path):
+    model = cls(env=windy(), seed=1)
+    model.learn(800)
+    model.save(tmp_path / "model.zip")
+    loaded = cls.load(tmp_path / "model.zip")
+    states = np.arange(70)
+    np.testing.assert_array_equal(
+        model.predict(states, deterministic=True)[0], loaded.predict(states, deterministic=True)[0]
+    )
+    for table in ("q_table", "ec_table"):
+        if hasattr(model, table):
+            np.testing.assert_array_equal(getattr(model, table), getattr(loaded, table))
+    if cls is TabularTwoMemory:
+        np.testing.assert_array_equal(model.policy.score_windows.returns, loaded.policy.score_windows.returns)
+        np.testing.assert_array_equal(model.policy.score_windows.counts, loaded.policy.score_windows.counts)
+        assert loaded.policy.evaluation_memory() == model.policy.evaluation_memory()
+
+
+def test_seeding_is_deterministic():
+    tables = []
+    for _ in range(2):
+        model = TabularTwoMemory(env=windy(), seed=3)
+        model.learn(1000)
+        tables.append((model.q_table.copy(), model.ec_table.copy(), model.policy.episode_counts.copy()))
+    for a, b in zip(*tables):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_two_memory_n_envs_and_windygrid():
+    env = make_vec_env(windy, n_envs=3, seed=0)
+    model = TabularTwoMemory(env=env, p_ec_schedule=0.5, seed=0)
+    model.learn(3000)
+    assert model.policy.episode_counts.min() > 0
+    assert model.replay_buffer.sources.shape[1] == 3
+
+
+def test_clear_errors():
+    with pytest.raises(ValueError, match="Discrete observation space"):
+        TabularQLearning(env="CartPole-v1")
+    with pytest.raises(ValueError, match="decayed p_ec schedule needs start >= end"):
+        TabularTwoMemory(env=windy(), p_ec_schedule={"type": "decayed", "start": 0.1, "end": 0.9, "decay": 10})
+    with pytest.raises(ValueError, match="exploration_initial_eps"):
+        TabularQLearning(env=windy(), exploration_initial_eps=1.5)
+    with pytest.raises(ValueError, match="gamma"):
+        TabularEpisodicControl(env=windy(), gamma=2.0)
