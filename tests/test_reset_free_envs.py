@@ -430,3 +430,27 @@ def test_pickle_round_trip(envs, env_id):
     for key in a:
         np.testing.assert_array_equal(a[key], b[key])
     clone.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_sac_her_runs_on_each_env(env_id):
+    """SB3 integration: HerReplayBuffer relabels with the env's batched compute_reward (short episodes)."""
+    from stable_baselines3 import SAC, HerReplayBuffer
+
+    env = gym.make(env_id, max_episode_steps=10)
+    model = SAC(
+        "MultiInputPolicy",
+        env,
+        replay_buffer_class=HerReplayBuffer,
+        replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
+        learning_starts=40,
+        batch_size=16,
+        policy_kwargs={"net_arch": [16]},
+        seed=0,
+        device="cpu",
+    )
+    model.learn(60)
+    assert model.replay_buffer.size() == 60 and model.replay_buffer.ep_length.max() == 10  # 6 full episodes
+    batch = model.replay_buffer.sample(32)
+    assert set(np.unique(batch.rewards.numpy())) <= {-1.0, 0.0, 1.0}
+    env.close()

@@ -4,8 +4,9 @@
 Four goal environments built on gymnasium-robotics' ``MujocoFetchEnv`` (the ``FetchPush-v4`` /
 ``FetchPickAndPlace-v4`` robot, table and block). All keep Fetch's spaces: ``observation`` (25,),
 ``achieved_goal``/``desired_goal`` (3,) block position, action Box(-1, 1, (4,)) (xyz gripper displacement
-x 5 cm + finger command), sparse reward ``-(d >= 0.05)`` with ``info["is_success"] = d < 0.05``, and they never
-terminate (every state can be left). Registered with ``max_episode_steps=EVAL_HORIZON``.
+x 5 cm + finger command), sparse reward ``-(d > 0.05)`` with ``info["is_success"] = d < 0.05`` (Fetch's). They
+terminate only if the block falls off the table, the one state the robot could not leave (the walls make it
+practically impossible). Registered with ``max_episode_steps=EVAL_HORIZON``.
 
 ``GCRL/ResetFreeFetchPush-v0``, ``GCRL/ResetFreeFetchPickAndPlace-v0`` (IBC's "ergodic" Fetch, thesis: "taken
 from the IBC paper"):
@@ -18,13 +19,16 @@ from the IBC paper"):
     Push keeps Fetch's blocked gripper, as IBC.
 
 ``GCRL/ResetFreeFetchPushHard-v0``, ``GCRL/ResetFreeFetchPickAndPlaceHard-v0`` (the thesis's own variants):
-    Real walls (colliding with robot and block) stand on the four table edges, enclosing the whole table top
-    (0.5 m x 0.7 m, :data:`HARD_ARENA_LOW`/:data:`HARD_ARENA_HIGH`, about 2.2x IBC's area), and the gripper's
-    mocap target is clipped to that arena (the robot's workspace is limited, so a block in a corner needs a
-    precise approach). The gripper is released in both (Push in gymnasium-robotics hard-codes
-    ``block_gripper=True``; overridden here). The block always starts at :data:`HARD_OBJECT_START` (table
-    centre). Push (hard) goals: U(-0.15, 0.15)^2 around that point, on the table. Pick&Place (hard) goals:
-    only in the air, uniform in a 5 x 5 x 10 cm box above the start point, 10-20 cm above the table.
+    Real 15 cm walls (colliding with robot and block) stand on the four table edges, enclosing the whole table
+    top (0.5 m x 0.7 m, :data:`HARD_ARENA_LOW`/:data:`HARD_ARENA_HIGH`, about 2.2x IBC's area), and the
+    gripper's mocap target is clipped to 3 cm inside that arena and 35 cm above the table (the robot's
+    workspace is limited, so a block in a corner needs a precise approach). Taller walls would be hit by the
+    upper arm when the gripper reaches the robot-side edge. The gripper is released in both (gymnasium-robotics'
+    Push hard-codes ``block_gripper=True`` and its scene has no finger actuators, so Push (hard) uses the
+    Pick&Place scene, which differs only by those actuators). The block always starts at
+    :data:`HARD_OBJECT_START` (table centre). Push (hard) goals: U(-0.15, 0.15)^2 around that point, on the
+    table. Pick&Place (hard) goals: only in the air, uniform in a 5 x 5 x 10 cm box above the start point,
+    10-20 cm above the table.
     Our choices where the thesis gives no number: arena = table top, start = table centre, gripper start 20 cm
     above the table (Pick&Place's, also for Push (hard), since the thesis gives both the same initial state),
     height of the air box.
