@@ -30,7 +30,8 @@ id                            observation         horizon    episode end
 Departures from the thesis: the thesis (CEC) used the ``mujoco_maze`` package (cells of 4 units, a
 point with an orientation, obs reduced to (x, y, orientation), Point4Rooms with 0.5-reward sub-goals); we
 build on gymnasium-robotics' maintained PointMaze instead: cells of 1 unit, a ball without orientation,
-no sub-goals. Traversing the U takes a simple waypoint controller about 200 steps here, so the goal
+no sub-goals (the 4-dim observation matches the thesis's Table 4.2). Traversing the U / the four rooms
+takes a simple waypoint controller about 160 / 390 steps here (pinned by tests/test_envs.py), so the goal
 variants use 300 (U) / 600 (four rooms) steps instead of IBC's 100-step evaluation, and the episodic ones
 keep the thesis's 1000 steps. The goal variants do not terminate at the goal (as IBC's PointUMaze and
 gymnasium-robotics' default), which keeps HER relabelling consistent; pass ``terminate_at_goal=True`` to

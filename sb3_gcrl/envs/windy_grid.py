@@ -167,14 +167,14 @@ class WindyGridEnv(gym.Env[np.int64, np.int64]):
                 P[s, :, s] = 1.0
                 continue
             cell = decode_cell(s)
+            gusts = [(False, 1.0)]
+            if cell[1] == WIND_COLUMN:
+                gusts = [(False, 1.0 - self.wind_probability), (True, self.wind_probability)]
             for a in range(n_actions):
-                for gust, prob in ((False, 1.0 - self.wind_probability), (True, self.wind_probability)):
-                    if cell[1] != WIND_COLUMN and gust:
-                        continue
-                    p = 1.0 if cell[1] != WIND_COLUMN else prob
+                for gust, prob in gusts:
                     s_next = encode_cell(*self._move(cell, a, gust))
-                    P[s, a, s_next] += p
-                    R[s, a] += p * self._outcome(s_next)[0]
+                    P[s, a, s_next] += prob
+                    R[s, a] += prob * self._outcome(s_next)[0]
         return P, R, terminal
 
 
