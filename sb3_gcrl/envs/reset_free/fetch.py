@@ -171,7 +171,7 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
         if self.walls_stop_robot:
             bits, rgba = 1, [0.55, 0.45, 0.35, 1.0]
         else:
-            bits, rgba = _OBJECT_ONLY_BIT, [0.3, 0.3, 0.9, 0.15]
+            bits, rgba = _OBJECT_ONLY_BIT, [0.3, 0.3, 0.9, 0.08]  # faint: a constraint, not an obstacle
             block = spec.geom("object0")
             block.contype = block.contype | _OBJECT_ONLY_BIT
             block.conaffinity = block.conaffinity | _OBJECT_ONLY_BIT
