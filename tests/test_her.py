@@ -1,0 +1,152 @@
+"""Executed-action storage and task-relevant HER relabeling (issue 3, items 4-5)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3 import SAC, HerReplayBuffer
+from stable_baselines3.common.env_util import make_vec_env
+from test_wrappers import FixedGoalScheduler, LineGoalEnv
+
+import sb3_gcrl  # noqa: F401 (registers GCRL/ envs)
+from sb3_gcrl.her import ExecutedActionHerReplayBuffer, TaskRelevantHerReplayBuffer
+from sb3_gcrl.wrappers import EXECUTED_ACTION_KEY, GoalCommandWrapper, GoExploreWrapper, ResetFreeWrapper
+
+TINY = {"net_arch": [16, 16]}
+
+
+class ActionRecorder(gym.Wrapper):
+    """Outermost wrapper recording the agent's action and the executed action of every step."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.agent_actions: list[np.ndarray] = []
+        self.executed: list[np.ndarray | None] = []
+
+    def step(self, action):
+        out = self.env.step(action)
+        self.agent_actions.append(np.array(action, dtype=np.float64))
+        self.executed.append(out[4].get(EXECUTED_ACTION_KEY))
+        return out
+
+
+def go_explore_line(env: gym.Env) -> gym.Env:
+    # unreachable goal: Go 4 steps, then Explore 4 steps with random actions replacing the agent's
+    inner = GoExploreWrapper(ResetFreeWrapper(env), FixedGoalScheduler(np.array([5.0])), go_steps=4, explore_steps=4)
+    return ActionRecorder(inner)
+
+
+def enable(model: SAC) -> None:
+    model.get_env().env_method("enable_reset_free")
+
+
+@pytest.mark.parametrize("buffer_class", [ExecutedActionHerReplayBuffer, TaskRelevantHerReplayBuffer])
+def test_executed_action_is_stored(buffer_class: type) -> None:
+    env = make_vec_env(LineGoalEnv, n_envs=2, seed=0, wrapper_class=go_explore_line)
+    model = SAC("MultiInputPolicy", env, replay_buffer_class=buffer_class, learning_starts=10_000, policy_kwargs=TINY)
+    model.learn(64, callback=None)  # first 8 steps per env are episodic; enable, then continue
+    enable(model)
+    model.learn(96, reset_num_timesteps=False)
+    buffer = model.replay_buffer
+    low, high = env.action_space.low, env.action_space.high
+    replaced = 0
+    for env_idx, recorder in enumerate(env.envs):
+        for t, (agent, executed) in enumerate(zip(recorder.agent_actions, recorder.executed)):
+            expected = agent if executed is None else executed
+            scaled = 2.0 * (expected - low) / (high - low) - 1.0
+            np.testing.assert_allclose(buffer.actions[t, env_idx], scaled, atol=1e-6)
+            replaced += executed is not None and not np.allclose(agent, executed)
+    assert replaced > 40  # Explore phases really replaced actions
+
+
+def test_stock_her_buffer_would_store_the_ignored_action() -> None:
+    """Negative control pinning why the executed-action buffers exist."""
+    env = make_vec_env(LineGoalEnv, n_envs=1, seed=0, wrapper_class=go_explore_line)
+    model = SAC(
+        "MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, learning_starts=10_000, policy_kwargs=TINY
+    )
+    model.learn(8)
+    enable(model)
+    model.learn(40, reset_num_timesteps=False)
+    recorder = env.envs[0]
+    t = next(i for i, e in enumerate(recorder.executed) if e is not None)
+    low, high = env.action_space.low, env.action_space.high
+    scaled_agent = 2.0 * (recorder.agent_actions[t] - low) / (high - low) - 1.0
+    np.testing.assert_allclose(model.replay_buffer.actions[t, 0], scaled_agent, atol=1e-6)
+
+
+class FarTaskGoals(LineGoalEnv):
+    """rho_0 = {-100}, rho_g* = {+100}: easy to tell apart from replayed goals in [-1, 1]."""
+
+    def __init__(self) -> None:
+        super().__init__(declare=False)
+        self.sample_initial_goal = lambda rng: np.array([-100.0])
+        self.sample_evaluation_goal = lambda rng: np.array([100.0])
+
+
+def filled_buffer(alpha: float, n_envs: int = 2) -> TaskRelevantHerReplayBuffer:
+    env = make_vec_env(
+        FarTaskGoals,
+        n_envs=n_envs,
+        seed=0,
+        wrapper_class=lambda e: GoalCommandWrapper(ResetFreeWrapper(e, eval_horizon=10)),
+    )
+    model = SAC(
+        "MultiInputPolicy",
+        env,
+        replay_buffer_class=TaskRelevantHerReplayBuffer,
+        replay_buffer_kwargs={"task_goal_ratio": alpha},
+        learning_starts=10_000,
+        policy_kwargs=TINY,
+    )
+    model.learn(200)
+    return model.replay_buffer  # type: ignore[return-value]
+
+
+@pytest.mark.parametrize("alpha", [0.2, 1.0])
+def test_relabeling_proportions(alpha: float) -> None:
+    buffer = filled_buffer(alpha)
+    np.random.seed(0)
+    n = 20_000
+    batch = np.random.randint(0, 90, n)  # inside finished episodes
+    envs = np.random.randint(0, 2, n)
+    goals = buffer._sample_goals(batch, envs)[:, 0]
+    p_eval, p_init = np.mean(goals == 100.0), np.mean(goals == -100.0)
+    tol = 4 * np.sqrt(0.25 / n)
+    assert abs(p_eval - alpha / 2) < tol and abs(p_init - alpha / 2) < tol
+    replayed = goals[np.abs(goals) < 50]
+    assert len(replayed) == n - np.sum(np.abs(goals) == 100.0)
+    assert np.all(np.abs(replayed) <= 1.0)  # the standard 'future' strategy: achieved goals of the episode
+
+
+def test_relabeled_rewards_use_the_task_goals() -> None:
+    buffer = filled_buffer(1.0)
+    np.random.seed(0)
+    samples = buffer.sample(256)
+    desired = samples.observations["desired_goal"][:, 0].numpy()
+    her_part = np.abs(desired) == 100.0
+    assert her_part.mean() == pytest.approx(buffer.her_ratio, abs=0.05)
+    assert np.all(samples.rewards.numpy()[her_part] == 0.0)  # nothing reaches +-100
+
+
+def test_task_relevant_buffer_errors() -> None:
+    env = make_vec_env(LineGoalEnv, n_envs=1, seed=0)
+    with pytest.raises(TypeError, match="wrap it in sb3_gcrl.wrappers.GoalCommandWrapper"):
+        SAC("MultiInputPolicy", env, replay_buffer_class=TaskRelevantHerReplayBuffer, policy_kwargs=TINY)
+    with pytest.raises(ValueError, match=r"task_goal_ratio \(alpha\) must be in \[0, 1\]"):
+        SAC(
+            "MultiInputPolicy",
+            env,
+            replay_buffer_class=TaskRelevantHerReplayBuffer,
+            replay_buffer_kwargs={"task_goal_ratio": 1.5},
+            policy_kwargs=TINY,
+        )
+    # alpha = 0 is standard HER and needs no goal-commanding wrapper
+    SAC(
+        "MultiInputPolicy",
+        env,
+        replay_buffer_class=TaskRelevantHerReplayBuffer,
+        replay_buffer_kwargs={"task_goal_ratio": 0.0},
+        policy_kwargs=TINY,
+    )
