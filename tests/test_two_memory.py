@@ -1,0 +1,314 @@
+"""2M agents (thesis Ch. 5): schedules, score windows, per-episode dispatch, data sharing, Eq. 5.6, save/load."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.env_checker import check_env
+from stable_baselines3.common.env_util import make_vec_env
+
+from sb3_gcrl.two_memory import (
+    EPISODIC,
+    PARAMETRIC,
+    AdaptiveSchedule,
+    ExponentialSchedule,
+    MinAtarCNN,
+    ScoreWindows,
+    SourceTaggedReplayBuffer,
+    TwoMemoryDQN,
+    TwoMemorySAC,
+    make_pec_schedule,
+)
+from sb3_gcrl.two_memory.schedules import UNASSIGNED
+
+TINY_DQN = dict(
+    learning_starts=20, buffer_size=2_000, batch_size=8, train_freq=4, target_update_interval=50,
+    policy_kwargs=dict(net_arch=[16], ec_projection_dim=4, ec_capacity_per_action=500),
+)  # fmt: skip
+
+
+class Corridor(gym.Env):
+    """One-hot position in a corridor of 6 cells; actions left/right; +1 at the right end; random start cell and
+    a 12-step limit, so episode lengths vary across envs."""
+
+    observation_space = gym.spaces.Box(0.0, 1.0, (6,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def _obs(self) -> np.ndarray:
+        obs = np.zeros(6, dtype=np.float32)
+        obs[self.pos] = 1.0
+        return obs
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.pos, self.t = int(self.np_random.integers(0, 3)), 0
+        return self._obs(), {}
+
+    def step(self, action):
+        self.pos = int(np.clip(self.pos + (1 if action == 1 else -1), 0, 5))
+        self.t += 1
+        done = self.pos == 5
+        return self._obs(), float(done), done, self.t >= 12, {}
+
+
+class Slider(gym.Env):
+    """1-D continuous reaching: x += a/4, reward -|x - 1|, 10 steps."""
+
+    observation_space = gym.spaces.Box(-5.0, 5.0, (1,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x, self.t = 0.0, 0
+        return np.array([self.x], np.float32), {}
+
+    def step(self, action):
+        self.x = float(np.clip(self.x + float(action[0]) / 4, -5, 5))
+        self.t += 1
+        return np.array([self.x], np.float32), -abs(self.x - 1.0), False, self.t >= 10, {}
+
+
+def test_test_envs_pass_checkers():
+    check_env(Corridor())
+    check_env(Slider())
+
+
+# ------------------------------------------------------------------------------------------------ schedules
+def test_exponential_schedule_matches_eq_5_5():
+    scores = ScoreWindows()
+    decayed = ExponentialSchedule(start=0.9, end=0.1, decay=1000)
+    assert decayed(0, scores) == pytest.approx(0.9)
+    assert decayed(500, scores) == pytest.approx(0.1 + 0.8 * math.exp(-0.5))
+    assert decayed(10**7, scores) == pytest.approx(0.1)
+    increasing = make_pec_schedule({"type": "increasing", "start": 0.1, "end": 0.9, "decay": 1000})
+    assert increasing(1000, scores) == pytest.approx(0.9 - 0.8 * math.exp(-1.0))
+    assert make_pec_schedule(0.3)(123, scores) == 0.3
+    assert isinstance(make_pec_schedule("adaptive"), AdaptiveSchedule)
+
+
+def test_adaptive_schedule_hand_computed():
+    schedule = AdaptiveSchedule(p_min=0.1, p_max=0.9, temperature=1.0, min_episodes=2, warmup_p_ec=0.5)
+    scores = ScoreWindows(window=4)
+    scores.push(EPISODIC, 3.0)
+    assert schedule(0, scores) == 0.5  # warm-up until both memories have 2 episodes
+    for value in (5.0,):
+        scores.push(EPISODIC, value)
+    for value in (1.0, 3.0):
+        scores.push(PARAMETRIC, value)
+    pooled = np.array([3.0, 5.0, 1.0, 3.0])
+    z = (4.0 - 2.0) / (pooled.std() + 1e-8)
+    assert schedule(0, scores) == pytest.approx(0.1 + 0.8 / (1 + math.exp(-z)))
+    # invariant to the reward scale and sign (the authors' ratio rule is not)
+    shifted = ScoreWindows(window=4)
+    for value in (3.0, 5.0):
+        shifted.push(EPISODIC, 10 * value - 100)
+    for value in (1.0, 3.0):
+        shifted.push(PARAMETRIC, 10 * value - 100)
+    assert schedule(0, shifted) == pytest.approx(schedule(0, scores))
+
+
+@pytest.mark.parametrize(
+    "spec, match",
+    [
+        ({"type": "decayed", "start": 0.1, "end": 0.9, "decay": 10}, "start >= end"),
+        ({"type": "increasing", "start": 0.9, "end": 0.1, "decay": 10}, "start <= end"),
+        ({"type": "decayed", "start": 0.9, "end": 0.1, "decay": 0}, "decay"),
+        (1.5, "probability"),
+        ("sometimes", "Cannot build a p_ec schedule"),
+        ({"type": "adaptive", "p_min": 0.9, "p_max": 0.1}, "p_min"),
+    ],
+)
+def test_schedule_errors(spec, match):
+    with pytest.raises(ValueError, match=match):
+        make_pec_schedule(spec)
+
+
+def test_score_windows_keep_last_n_and_choose_eq_5_6():
+    scores = ScoreWindows(window=3)
+    assert scores.evaluation_memory() == PARAMETRIC  # no data for either: tie goes to RL
+    scores.push(EPISODIC, -10.0)
+    assert scores.evaluation_memory() == EPISODIC  # only EC has a score
+    for value in (100.0, 1.0, 2.0, 3.0):  # the 100 drops out of the window of 3
+        scores.push(PARAMETRIC, value)
+    assert scores.score(PARAMETRIC) == pytest.approx(2.0)
+    assert scores.evaluation_memory() == PARAMETRIC
+    for value in (2.0, 2.0, 2.0):
+        scores.push(EPISODIC, value)
+    assert scores.score(EPISODIC) == 2.0 and scores.evaluation_memory() == PARAMETRIC  # s_rl >= s_ec
+    scores.push(EPISODIC, 2.5)
+    assert scores.evaluation_memory() == EPISODIC
+
+
+# ------------------------------------------------------------------------------------------------ buffer
+def test_source_tagged_buffer_samples_only_allowed_sources():
+    space = gym.spaces.Box(-10, 10, (1,), np.float32)
+    buffer = SourceTaggedReplayBuffer(100, space, gym.spaces.Discrete(2), n_envs=2, sampled_sources=(PARAMETRIC,))
+    for t in range(10):
+        buffer.next_sources[:] = [EPISODIC, PARAMETRIC]
+        obs = np.array([[t], [-t]], np.float32)  # env 0 (EC) positive, env 1 (RL) non-positive
+        buffer.add(obs, obs, np.zeros(2), np.zeros(2), np.zeros(2), [{}, {}])
+    assert buffer.n_sampleable() == 10 and buffer.source_fraction(EPISODIC) == 0.5
+    assert (buffer.sample(64).observations <= 0).all()
+    with pytest.raises(ValueError, match="optimize_memory_usage"):
+        SourceTaggedReplayBuffer(10, space, gym.spaces.Discrete(2), optimize_memory_usage=True, sampled_sources=(1,))
+
+
+# ------------------------------------------------------------------------------------------------ dispatch
+class RecordDispatch(BaseCallback):
+    """Records, for every env step, the memory that chose the action and the done flags."""
+
+    def _on_training_start(self) -> None:
+        self.memories, self.dones = [], []
+
+    def _on_step(self) -> bool:
+        self.memories.append(self.model.policy.acting_memory.copy())
+        self.dones.append(self.locals["dones"].copy())
+        return True
+
+
+def test_dispatch_is_per_episode_and_per_env():
+    env = make_vec_env(Corridor, n_envs=3, seed=0)
+    model = TwoMemoryDQN("MlpPolicy", env, p_ec_schedule=0.5, seed=0, **TINY_DQN)
+    recorder = RecordDispatch()
+    model.learn(600, callback=recorder)
+    memories, dones = np.array(recorder.memories), np.array(recorder.dones)
+    assert (memories != UNASSIGNED).all()
+    switches = 0
+    for env_index in range(3):
+        for t in range(1, len(memories)):
+            if memories[t, env_index] != memories[t - 1, env_index]:
+                switches += 1
+                assert dones[t - 1, env_index], "the acting memory changed in the middle of an episode"
+    assert switches > 5
+    counts = model.policy.episode_counts
+    assert counts[EPISODIC] > 0 and counts[PARAMETRIC] > 0
+    assert counts.sum() == dones.sum()
+
+
+@pytest.mark.parametrize("data_sharing", [True, False])
+def test_data_sharing_routing_dqn(data_sharing):
+    # RL runs every episode: with sharing MFEC learns from them, without it stays empty
+    model = TwoMemoryDQN("MlpPolicy", Corridor(), p_ec_schedule=0.0, data_sharing=data_sharing, seed=0, **TINY_DQN)
+    model.learn(200)
+    assert (len(model.policy.mfec) > 0) == data_sharing
+    # EC runs every episode: without sharing the Q-network never trains
+    model = TwoMemoryDQN("MlpPolicy", Corridor(), p_ec_schedule=1.0, data_sharing=data_sharing, seed=0, **TINY_DQN)
+    before = [p.detach().clone() for p in model.q_net.parameters()]
+    model.learn(200)
+    changed = any(not th.equal(a, b) for a, b in zip(before, model.q_net.parameters()))
+    assert changed == data_sharing
+    assert model.replay_buffer.source_fraction(EPISODIC) == 1.0
+    assert len(model.policy.mfec) > 0
+
+
+def test_evaluation_uses_eq_5_6_memory():
+    model = TwoMemoryDQN("MlpPolicy", Corridor(), p_ec_schedule=0.5, seed=0, **TINY_DQN)
+    model.learn(300)
+    env = Corridor()
+    observations = np.stack([env.reset(seed=s)[0] for s in range(3)] + [np.eye(6, dtype=np.float32)[4]])
+    th_obs = th.as_tensor(observations)
+    ec_actions = model.policy._episodic_actions(th_obs, deterministic=True).numpy()
+    rl_actions = model.policy._parametric_actions(th_obs, deterministic=True).numpy()
+    windows = model.policy.score_windows
+    windows.push(EPISODIC, 1e6)  # EC far ahead
+    assert model.policy.evaluation_memory() == EPISODIC
+    np.testing.assert_array_equal(model.predict(observations, deterministic=True)[0], ec_actions)
+    for _ in range(windows.window):
+        windows.push(PARAMETRIC, 2e6)
+    assert model.policy.evaluation_memory() == PARAMETRIC
+    np.testing.assert_array_equal(model.predict(observations, deterministic=True)[0], rl_actions)
+
+
+def test_save_load_round_trip_dqn(tmp_path):
+    env = make_vec_env(Corridor, n_envs=2, seed=1)
+    model = TwoMemoryDQN("MlpPolicy", env, p_ec_schedule={"type": "decayed", "start": 0.9, "end": 0.1, "decay": 300},
+                         seed=1, **TINY_DQN)  # fmt: skip
+    model.learn(400)
+    model.save(tmp_path / "2m.zip")
+    loaded = TwoMemoryDQN.load(tmp_path / "2m.zip")
+    observations = np.eye(6, dtype=np.float32)
+    th_obs = th.as_tensor(observations)
+    for memory in ("_episodic_actions", "_parametric_actions"):
+        np.testing.assert_array_equal(
+            getattr(model.policy, memory)(th_obs, True).numpy(), getattr(loaded.policy, memory)(th_obs, True).numpy()
+        )
+    np.testing.assert_array_equal(model.policy.mfec.estimate(np.eye(6)[:, :1].repeat(4, 1)),
+                                  loaded.policy.mfec.estimate(np.eye(6)[:, :1].repeat(4, 1)))  # fmt: skip
+    assert len(loaded.policy.mfec) == len(model.policy.mfec) > 0
+    np.testing.assert_array_equal(loaded.policy.score_windows.returns, model.policy.score_windows.returns)
+    np.testing.assert_array_equal(loaded.policy.score_windows.counts, model.policy.score_windows.counts)
+    np.testing.assert_array_equal(loaded.policy.episode_counts, model.policy.episode_counts)
+    np.testing.assert_array_equal(model.predict(observations, deterministic=True)[0],
+                                  loaded.predict(observations, deterministic=True)[0])  # fmt: skip
+    assert loaded.data_sharing and loaded.policy.p_ec_schedule.decay == 300
+    loaded.set_env(make_vec_env(Corridor, n_envs=2, seed=2))
+    loaded.learn(100)  # training continues after loading
+
+
+def test_seeding_is_deterministic_dqn():
+    runs = []
+    for _ in range(2):
+        model = TwoMemoryDQN("MlpPolicy", Corridor(), p_ec_schedule=0.5, seed=7, **TINY_DQN)
+        model.learn(250)
+        runs.append((model.policy.episode_counts.copy(), model.policy.mfec.state_dict(), model.q_net.state_dict()))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    for key, value in runs[0][1].items():
+        np.testing.assert_array_equal(value, runs[1][1][key])
+    for key, value in runs[0][2].items():
+        assert th.equal(value, runs[1][2][key])
+
+
+def test_two_memory_sac_dispatch_and_round_trip(tmp_path):
+    env = make_vec_env(Slider, n_envs=2, seed=0)
+    model = TwoMemorySAC(
+        "MlpPolicy", env, p_ec_schedule=0.5, seed=0, learning_starts=20, batch_size=16, buffer_size=2_000,
+        policy_kwargs=dict(net_arch=[16], ec_distance_threshold=0.05),
+    )  # fmt: skip
+    recorder = RecordDispatch()
+    model.learn(300, callback=recorder)
+    memories, dones = np.array(recorder.memories), np.array(recorder.dones)
+    changes = memories[1:] != memories[:-1]
+    assert not (changes & ~dones[:-1]).any()
+    assert model.policy.episode_counts.min() > 0 and len(model.policy.cec) > 0
+    model.save(tmp_path / "2m_sac.zip")
+    loaded = TwoMemorySAC.load(tmp_path / "2m_sac.zip")
+    obs = np.linspace(-1, 2, 7, dtype=np.float32).reshape(-1, 1)
+    for memory in ("_episodic_actions", "_parametric_actions"):
+        np.testing.assert_allclose(
+            getattr(model.policy, memory)(th.as_tensor(obs), True).detach().numpy(),
+            getattr(loaded.policy, memory)(th.as_tensor(obs), True).detach().numpy(),
+        )
+    np.testing.assert_array_equal(loaded.policy.score_windows.returns, model.policy.score_windows.returns)
+
+
+def test_minatar_cnn_matches_authors_network():
+    env = gym.make("MinAtar/Breakout-v1")
+    model = TwoMemoryDQN("MinAtarPolicy", env, learning_starts=10, buffer_size=100)
+    assert model.q_net.features_extractor.features_dim == 1152
+    assert [m.out_features for m in model.q_net.q_net if isinstance(m, th.nn.Linear)] == [3]
+    with pytest.raises(ValueError, match="channel-last"):
+        MinAtarCNN(gym.spaces.Box(0, 1, (10,), np.float32))
+
+
+def test_clear_errors():
+    with pytest.raises(AssertionError, match="Discrete"):
+        TwoMemoryDQN("MlpPolicy", Slider())
+    with pytest.raises(ValueError, match="Cannot build a p_ec schedule"):
+        TwoMemoryDQN("MlpPolicy", Corridor(), p_ec_schedule="often")
+    with pytest.raises(ValueError, match="SourceTaggedReplayBuffer"):
+        TwoMemoryDQN("MlpPolicy", Corridor(), data_sharing=False, replay_buffer_class=ReplayBuffer)
+    with pytest.raises(ValueError, match="ec_gamma"):
+        TwoMemoryDQN("MlpPolicy", Corridor(), ec_gamma=1.5)
+    with pytest.raises(ValueError, match="use_sde"):
+        TwoMemorySAC("MlpPolicy", Slider(), use_sde=True)
+    model = TwoMemoryDQN("MlpPolicy", Corridor(), **TINY_DQN)
+    with pytest.raises(ValueError, match="NaN"):
+        model.policy.update_episodic_memory(
+            model.policy._episode_features(np.full((2, 6), np.nan, np.float32)), np.zeros(2), np.zeros(2)
+        )
