@@ -1,12 +1,12 @@
 """`sb3-gcrl compare`: method/env resolution, evaluation schedule, resume, crash isolation, Ray backend.
 
-The end-to-end tests share one tiny comparison (2 methods x 2 seeds x 200 steps on Pendulum with 8-unit
-nets, plus a method whose config is broken) built by a module fixture that is first interrupted after its
-first finished run and then resumed.
+The end-to-end test runs the issue's tiny comparison (2 methods x 2 seeds x 200 steps on Pendulum, 8-unit
+nets) once and checks it in phases (one test function, so that pytest-xdist never runs it twice).
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
 from pathlib import Path
@@ -23,7 +23,8 @@ from sb3_gcrl.compare import EvaluationRecorder, LocalProcessBackend, compare, p
 from sb3_gcrl.compare.cli import EXIT_USAGE
 from sb3_gcrl.compare.cli import main as compare_main
 from sb3_gcrl.compare.methods import check_env_id
-from sb3_gcrl.compare.run import RunResult, RunSpec
+from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run
+from sb3_gcrl.compare.runner import plan_runs
 from sb3_gcrl.compare.storage import is_finished, read_run_record, write_run_result
 
 TINY_CONFIG = """
@@ -45,22 +46,36 @@ Pendulum-v1:
   policy: 'MlpPolicy'
   learning_rate: not-a-schedule
 """
+# an env wrapper that kills its own process, as a segfault or the out-of-memory killer would
+KILLED_CONFIG = (
+    TINY_CONFIG
+    + """
+  env_wrapper: killing_wrapper.kill_process
+"""
+)
+KILLING_WRAPPER = """
+import os, signal
+
+def kill_process(env):
+    os.kill(os.getpid(), signal.SIGKILL)
+"""
 
 
 def write_configs(folder: Path) -> dict[str, Path]:
     folder.mkdir(parents=True, exist_ok=True)
-    paths = {"sac": folder / "tiny_sac.yml", "td3": folder / "tiny_td3.yml", "broken": folder / "broken.yml"}
-    paths["sac"].write_text(TINY_CONFIG)
-    paths["td3"].write_text(TINY_CONFIG + TINY_TD3_EXTRA)
-    paths["broken"].write_text(BROKEN_CONFIG)
+    texts = {"sac": TINY_CONFIG, "td3": TINY_CONFIG + TINY_TD3_EXTRA, "broken": BROKEN_CONFIG, "killed": KILLED_CONFIG}
+    paths = {name: folder / f"tiny_{name}.yml" for name in texts}
+    for name, text in texts.items():
+        paths[name].write_text(text)
     return paths
 
 
-def tiny_comparison(configs: dict[str, Path], output: Path, **kwargs):
-    """The tiny comparison of the issue: sac vs td3, 2 seeds, 200 steps, + a method that crashes."""
-    methods = [f"sac:{configs['sac']}", f"td3:{configs['td3']}", f"broken=sac:{configs['broken']}"]
-    options = dict(seeds=[0, 1], eval_freq=100, n_eval_episodes=1, output=output, progress=False, n_workers=2)
-    return compare(methods, ["Pendulum-v1"], **{**options, **kwargs})
+TINY_OPTIONS = dict(seeds=[0, 1], eval_freq=100, n_eval_episodes=1, progress=False, n_workers=2)
+
+
+def tiny_methods(configs: dict[str, Path]) -> list[str]:
+    """The tiny comparison of the issue: sac vs td3 (x 2 seeds x 200 steps, 8-unit nets)."""
+    return [f"sac:{configs['sac']}", f"td3:{configs['td3']}"]
 
 
 class InterruptAfterFirstRun:
@@ -85,37 +100,33 @@ class InterruptingBackend(LocalProcessBackend):
         super().run(jobs, InterruptAfterFirstRun(events))
 
 
-@pytest.fixture(scope="module")
-def resumed(tmp_path_factory):
-    """Interrupt the tiny comparison after its first run, record what was on disk, then resume it."""
-    folder = tmp_path_factory.mktemp("compare")
-    configs = write_configs(folder / "configs")
-    output = folder / "out"
+def finished_runs(output: Path) -> dict[Path, int]:
+    """Run folders whose run.json says finished -> modification time of that file."""
+    return {
+        path.parent: path.stat().st_mtime_ns
+        for path in output.glob("runs/*/*/*/run.json")
+        if json.loads(path.read_text())["status"] == "finished"
+    }
+
+
+def test_tiny_comparison_end_to_end(tmp_path, monkeypatch, capsys):
+    """Interrupted -> resumed without redoing finished runs -> files and table -> re-run skips all -> crash."""
+    configs = write_configs(tmp_path / "configs")
+    output = tmp_path / "out"
+
+    # 1. Ctrl-C after the first run ended: runs in flight are stopped, finished ones stay on disk
     with pytest.raises(KeyboardInterrupt):
-        tiny_comparison(configs, output, backend=InterruptingBackend(n_workers=2))
-    ended_before = {
-        path.parent: path.stat().st_mtime_ns for path in output.glob("runs/*/*/*/run.json")
-    }  # runs that ended (finished or failed) before the interruption
-    result = tiny_comparison(configs, output)
-    return configs, output, ended_before, result
+        compare(tiny_methods(configs), ["Pendulum-v1"], output=output, backend=InterruptingBackend(2), **TINY_OPTIONS)
+    done_before = finished_runs(output)
+    assert len(done_before) >= 1
 
+    # 2. the same command resumes: finished runs are skipped and not rewritten, the others are redone
+    result = compare(tiny_methods(configs), ["Pendulum-v1"], output=output, **TINY_OPTIONS)
+    assert result.n_skipped == len(done_before)
+    assert {run_dir: finished_runs(output)[run_dir] for run_dir in done_before} == done_before
+    assert len(finished_runs(output)) == 4 and not result.summary.failed
 
-def test_interrupted_comparison_resumes_without_redoing_finished_runs(resumed):
-    _, output, ended_before, result = resumed
-    assert len(ended_before) >= 1
-    finished_before = [d for d in ended_before if read_run_record(d)["status"] == "finished"]
-    # runs that finished before the interruption were skipped, and their files were not rewritten
-    assert result.n_skipped == len(finished_before)
-    for run_dir in finished_before:
-        assert (run_dir / "run.json").stat().st_mtime_ns == ended_before[run_dir]
-    # the runs cut by the interruption were redone completely
-    for spec in result.specs:
-        record = read_run_record(output / "runs" / spec.relative_dir)
-        assert record["status"] == ("failed" if spec.method == "broken" else "finished")
-
-
-def test_comparison_writes_curves_tables_plot_and_report(resumed):
-    _, output, _, result = resumed
+    # 3. what the comparison wrote
     for name in ["curves.csv", "scores.csv", "summary.csv", "curves.png", "report.md", "comparison.json"]:
         assert (output / name).stat().st_size > 0, name
     run_dir = output / "runs" / "Pendulum-v1" / "tiny_sac" / "seed_0"
@@ -124,66 +135,67 @@ def test_comparison_writes_curves_tables_plot_and_report(resumed):
     assert evaluations["success_rate"].isna().all()  # Pendulum reports no is_success
     assert (evaluations["mean_length"] == 200).all()
     assert (run_dir / "zoo" / "sac").is_dir()  # RL-Zoo's own outputs (config.yml, monitor.csv)
-
     summary = pd.read_csv(output / "summary.csv")
     assert summary["method"].tolist() == ["tiny_sac", "tiny_td3"]
     assert summary["n_runs"].tolist() == [2, 2]
-    assert set(summary["estimator"]) == {"mean"}  # 2 runs: mean and range, not IQM
+    assert set(summary["estimator"]) == {"mean"}  # 2 runs: mean and [min, max], not IQM
     scores = pd.read_csv(output / "scores.csv")
-    sac = evaluations["mean_return"].to_numpy()
+    returns = evaluations["mean_return"].to_numpy()
     row = scores[(scores["method"] == "tiny_sac") & (scores["seed"] == 0)].iloc[0]
-    assert row["final"] == pytest.approx(sac[-1])
-    assert row["auc"] == pytest.approx(((sac[0] + sac[1]) / 2 + (sac[1] + sac[2]) / 2) / 2)
-
-    assert "tiny_sac" in result.summary.table and "tiny_td3" in result.summary.table
+    assert row["final"] == pytest.approx(returns[-1])
+    assert row["auc"] == pytest.approx(((returns[0] + returns[1]) / 2 + (returns[1] + returns[2]) / 2) / 2)
     report = (output / "report.md").read_text()
-    assert result.summary.table in report
-    assert "## Failed or missing runs" in report and "broken / seed 0" in report
-    assert [spec.method for spec, _, _ in result.summary.failed] == ["broken", "broken"]
+    assert result.summary.table in report and "| tiny_td3" in result.summary.table
+
+    # 4. the CLI on the same folder: everything skipped, nothing rewritten, the table printed
+    before = finished_runs(output)
+    argv = ["-m", *tiny_methods(configs), "-e", "Pendulum-v1", "--seeds", "0", "1", "--eval-freq", "100"]
+    assert compare_main([*argv, "--eval-episodes", "1", "-o", str(output), "--no-progress"]) == 0
+    assert finished_runs(output) == before
+    assert "4 runs (4 resumed, 0 failed)" in capsys.readouterr().out
+
+    # 5. a worker killed by a signal is recorded as failed; the other runs are kept and the exit code says so
+    (tmp_path / "killing_wrapper.py").write_text(KILLING_WRAPPER)
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    argv = ["-m", f"sac:{configs['sac']}", f"killed=sac:{configs['killed']}", "-e", "Pendulum-v1", "--seeds", "0"]
+    assert compare_main([*argv, "--eval-freq", "100", "--eval-episodes", "1", "-o", str(output), "--no-progress"]) == 1
+    record = read_run_record(output / "runs" / "Pendulum-v1" / "killed" / "seed_0")
+    assert record["status"] == "failed" and "killed by signal 9" in record["error"]
+    assert finished_runs(output) == before
+    assert "killed / seed 0" in (output / "report.md").read_text()
 
 
-def test_crashed_run_is_recorded_with_its_traceback(resumed):
-    _, output, _, _ = resumed
-    run_dir = output / "runs" / "Pendulum-v1" / "broken" / "seed_0"
-    record = read_run_record(run_dir)
-    assert record["status"] == "failed"
-    assert "Traceback" in record["error"]
-    assert "Traceback" in (run_dir / "train.log").read_text()
+def test_changed_settings_are_not_silently_reused(tmp_path):
+    configs = write_configs(tmp_path)
+    spec = plan_runs([parse_method(f"sac:{configs['sac']}")], ["Pendulum-v1"], [0], 200, 100, 1, {}, (), tmp_path)[0]
+    write_run_result(tmp_path / "out" / "runs" / spec.relative_dir, RunResult(spec, "finished"))
+    with pytest.raises(FileExistsError, match=r"n_timesteps: 200 -> 300.*--overwrite"):
+        compare([f"sac:{configs['sac']}"], ["Pendulum-v1"], seeds=[0], n_timesteps=300, output=tmp_path / "out")
 
 
-def test_rerun_skips_everything_finished_and_retries_failures_only(resumed, capsys):
-    configs, output, _, _ = resumed
-    before = {p: p.stat().st_mtime_ns for p in output.glob("runs/*/tiny_*/*/run.json")}
-    code = compare_main(
-        ["-m", f"sac:{configs['sac']}", f"td3:{configs['td3']}", "-e", "Pendulum-v1", "--seeds", "0", "1"]
-        + ["--eval-freq", "100", "--eval-episodes", "1", "-o", str(output), "--no-progress"]
-    )
-    assert code == 0
-    assert {p: p.stat().st_mtime_ns for p in before} == before
-    out = capsys.readouterr().out
-    assert "4 runs (4 resumed, 0 failed)" in out and "| tiny_sac" in out
+def test_failing_run_returns_its_traceback_instead_of_raising(tmp_path):
+    configs = write_configs(tmp_path)
+    spec = plan_runs([parse_method(f"sac:{configs['broken']}")], ["Pendulum-v1"], [0], 200, 100, 1, {}, (), tmp_path)
+    log = io.StringIO()
+    result = execute_run(spec[0], tmp_path / "run", log)
+    assert result.status == "failed"
+    assert "Traceback" in result.error and "ValueError" in result.error
+    assert result.error in log.getvalue()
 
 
-def test_changed_settings_are_not_silently_reused(resumed):
-    configs, output, _, _ = resumed
-    with pytest.raises(FileExistsError, match="--overwrite"):
-        compare([f"sac:{configs['sac']}"], ["Pendulum-v1"], seeds=[0], n_timesteps=300, output=output, progress=False)
-
-
-def test_ray_backend_runs_the_same_tiny_comparison(resumed, tmp_path):
+@pytest.mark.slow  # Ray's own start-up (GCS, raylet, workers) takes ~1 min on a loaded 2-core machine
+def test_ray_backend_runs_the_same_tiny_comparison(tmp_path):
     pytest.importorskip("ray")
-    configs, local_output, _, _ = resumed
-    methods = [f"sac:{configs['sac']}", f"td3:{configs['td3']}"]
-    result = compare(
-        methods, ["Pendulum-v1"], seeds=[0, 1], eval_freq=100, n_eval_episodes=1, output=tmp_path, backend="ray",
-        n_workers=2, progress=False,
-    )  # fmt: skip
-    assert not result.summary.failed
-    for spec in result.specs:  # same seeds -> same runs as with the local process pool
-        ray_curve = pd.read_csv(tmp_path / "runs" / spec.relative_dir / "evaluations.csv")
-        local_curve = pd.read_csv(local_output / "runs" / spec.relative_dir / "evaluations.csv")
-        np.testing.assert_allclose(ray_curve["mean_return"], local_curve["mean_return"])
-    assert "Traceback" not in (tmp_path / "runs" / result.specs[0].relative_dir / "train.log").read_text()
+    configs = write_configs(tmp_path / "configs")
+    result = compare(tiny_methods(configs), ["Pendulum-v1"], output=tmp_path / "out", backend="ray", **TINY_OPTIONS)
+    assert not result.summary.failed and len(result.specs) == 4
+    assert (tmp_path / "out" / "curves.png").is_file() and "| tiny_td3" in result.summary.table
+    # same seeds, same run: a run on Ray equals the run executed here
+    spec = result.specs[-1]
+    local = execute_run(spec, tmp_path / "local", io.StringIO())
+    on_ray = pd.read_csv(tmp_path / "out" / "runs" / spec.relative_dir / "evaluations.csv")
+    np.testing.assert_allclose(on_ray["mean_return"], [row["mean_return"] for row in local.evaluations])
+    assert "eval@200" in (tmp_path / "out" / "runs" / spec.relative_dir / "train.log").read_text()
 
 
 # --- names and errors -------------------------------------------------------------------------------------
