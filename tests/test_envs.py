@@ -22,6 +22,7 @@ from sb3_gcrl.envs import (
     WindyGridEnv,
     decode_state,
     encode_state,
+    make_tabular_minigrid,
     windy_grid_optimal_value,
     windy_grid_policy_value,
     windy_grid_value_iteration,
@@ -431,6 +432,26 @@ def test_tabular_observation_is_agent_pose_and_layout_is_fixed(env_id: str) -> N
         assert wrapper(obs) == (*map(int, base.agent_pos), base.agent_dir)
     second, _ = env.reset(seed=123)  # a different episode seed: same layout, same start pose
     assert second == first and np.array_equal(base.grid.encode(), grid)
+
+
+@pytest.mark.parametrize("env_id", TABULAR_IDS)
+def test_tabular_cached_layout_reset_equals_regenerated_reset(env_id: str) -> None:
+    minigrid_id = gym.spec(env_id).kwargs["minigrid_id"]
+    cached = make_tabular_minigrid(minigrid_id, layout_seed=2, cache_layout=True)
+    regenerated = make_tabular_minigrid(minigrid_id, layout_seed=2, cache_layout=False)
+    for env in (cached, regenerated):
+        env.action_space.seed(0)
+    for episode in range(3):
+        first = [env.reset(seed=episode)[0] for env in (cached, regenerated)]
+        assert first[0] == first[1]
+        for _ in range(40):
+            action = cached.action_space.sample()
+            outcomes = [env.step(action)[:4] for env in (cached, regenerated)]
+            assert outcomes[0] == outcomes[1]
+            if outcomes[0][2] or outcomes[0][3]:
+                break
+        assert cached.unwrapped.step_count == regenerated.unwrapped.step_count
+        assert np.array_equal(cached.unwrapped.grid.encode(), regenerated.unwrapped.grid.encode())
 
 
 def test_tabular_layout_seed_selects_the_layout() -> None:

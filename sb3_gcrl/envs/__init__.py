@@ -54,17 +54,17 @@ _ENV_SPECS: dict[str, tuple[str, int | None, dict]] = {
     "GCRL/FourRoomsTabular-v0": (
         "sb3_gcrl.envs.minigrid_tabular:make_tabular_minigrid",
         None,
-        {"minigrid_id": "MiniGrid-FourRooms-v0"},
+        {"minigrid_id": "MiniGrid-FourRooms-v0", "cache_layout": True},
     ),
     "GCRL/LavaCrossingTabular-v0": (
         "sb3_gcrl.envs.minigrid_tabular:make_tabular_minigrid",
         None,
-        {"minigrid_id": "MiniGrid-LavaCrossingS9N1-v0"},
+        {"minigrid_id": "MiniGrid-LavaCrossingS9N1-v0", "cache_layout": True},
     ),
     "GCRL/LavaGapTabular-v0": (
         "sb3_gcrl.envs.minigrid_tabular:make_tabular_minigrid",
         None,
-        {"minigrid_id": "MiniGrid-LavaGapS7-v0"},
+        {"minigrid_id": "MiniGrid-LavaGapS7-v0", "cache_layout": True},
     ),
 }
 
