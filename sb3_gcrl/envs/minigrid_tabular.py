@@ -21,7 +21,8 @@ id                               MiniGrid task                    observation   
 - Layout: fixed per ``layout_seed`` (``gym.make(id, layout_seed=k)``, default 0): every reset regenerates the
   grid from that seed, so the walls, lava, goal and start pose are the same in every episode. The seed
   passed to ``reset`` cannot change anything (MiniGrid's dynamics are deterministic); the thesis's "10
-  environment seeds" of the lava tasks are ``layout_seed=0..9``.
+  environment seeds" of the lava tasks are ``layout_seed=0..9``. These tasks are static, so the grid is
+  built once and later resets only restore the start pose (``cache_layout=True``).
 
 Departures from the thesis: the thesis does not name the sizes of the lava tasks; we use MiniGrid's
 ``LavaCrossingS9N1`` and ``LavaGapS7``. The action set is restricted to the three navigation actions. The
