@@ -76,15 +76,22 @@ def iqm_with_ci(
 
     matrix = np.asarray(scores, dtype=np.float64)
     matrix = matrix[:, None] if matrix.ndim == 1 else matrix
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)  # arch: random_state -> generator (rliable passes the former)
-        point, interval = rly.get_interval_estimates(
-            {"scores": matrix},
-            lambda x: np.array([metrics.aggregate_iqm(x)]),
-            reps=reps,
-            confidence_interval_size=confidence,
-            random_state=np.random.RandomState(seed),
-        )
+    # rliable 1.2's StratifiedBootstrap draws its indices from the *global* numpy RNG (its random_state only
+    # reaches arch), so seed that one for reproducible reports and put the caller's state back afterwards
+    global_state = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)  # arch: random_state -> generator (rliable passes it)
+            point, interval = rly.get_interval_estimates(
+                {"scores": matrix},
+                lambda x: np.array([metrics.aggregate_iqm(x)]),
+                reps=reps,
+                confidence_interval_size=confidence,
+                random_state=np.random.RandomState(seed),
+            )
+    finally:
+        np.random.set_state(global_state)
     return float(point["scores"][0]), float(interval["scores"][0, 0]), float(interval["scores"][1, 0])
 
 
