@@ -5,6 +5,8 @@ gymnasium-robotics and MinAtar ones), so ``rl_zoo3 train --gym-packages sb3_gcrl
 """
 
 from sb3_gcrl.envs import register_envs
+from sb3_gcrl.imgep import TabularIMGEP
+from sb3_gcrl.post_exploration import PostExplorationCallback, PostExplorationWrapper
 from sb3_gcrl.tabular import TabularEpisodicControl, TabularQLearning, TabularTwoMemory
 from sb3_gcrl.two_memory import TwoMemoryDQN, TwoMemorySAC
 from sb3_gcrl.version import __version__
@@ -12,6 +14,9 @@ from sb3_gcrl.version import __version__
 register_envs()
 
 __all__ = [
+    "PostExplorationCallback",
+    "PostExplorationWrapper",
+    "TabularIMGEP",
     "TabularEpisodicControl",
     "TabularQLearning",
     "TabularTwoMemory",

@@ -18,6 +18,7 @@ ALGORITHMS["two_memory_sac"] = "sb3_gcrl.two_memory:TwoMemorySAC"
 ALGORITHMS["tabular_q"] = "sb3_gcrl.tabular:TabularQLearning"
 ALGORITHMS["tabular_ec"] = "sb3_gcrl.tabular:TabularEpisodicControl"
 ALGORITHMS["tabular_2m"] = "sb3_gcrl.tabular:TabularTwoMemory"
+ALGORITHMS["imgep"] = "sb3_gcrl.imgep:TabularIMGEP"
 
 
 def load_algorithm(name: str) -> type[BaseAlgorithm]:

@@ -53,6 +53,7 @@ def test_novelty_adaptive_rule_stretches_novel_goals_and_skips_known_ones() -> N
     assert rule.length(10, goal_visits=50, typical_visits=10) == 0  # 5x more visited: inside the known region
     assert rule.length(40, goal_visits=10, typical_visits=10) == 20  # far goals get longer post-exploration
     assert NoveltyAdaptive(max_steps=3).length(40, 1, 1) == 3
+    assert NoveltyAdaptive(n_pe=30).length(5, goal_visits=2, typical_visits=4) == 60  # deep RL: n_pe * scale
     with pytest.raises(ValueError, match="min_scale"):
         NoveltyAdaptive(min_scale=2.0, max_scale=1.0)
 
@@ -66,3 +67,145 @@ def test_make_post_exploration_rule_from_yaml_values() -> None:
         make_post_exploration_rule(n_pe=10, p_pe=0.5)
     with pytest.raises(ValueError, match="exactly one"):
         make_post_exploration_rule()
+
+
+# --- deep RL: wrapper, callback, executed actions in HER, RL-Zoo ------------------------------------------------
+
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import gymnasium as gym  # noqa: E402
+from stable_baselines3 import SAC, HerReplayBuffer  # noqa: E402
+
+import sb3_gcrl  # noqa: E402,F401
+from sb3_gcrl.her import ExecutedActionHerReplayBuffer  # noqa: E402
+from sb3_gcrl.post_exploration import PostExplorationCallback, PostExplorationWrapper  # noqa: E402
+
+TREE_GOALS = {"tau": 0.0, "goal_low": [-2.0], "goal_high": [2.0], "n_bins": 40, "within_bin": "uniform"}
+
+
+class ActionRecorder(gym.Wrapper):
+    """Records the actions the base env really executes."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.executed: list[np.ndarray] = []
+
+    def step(self, action):
+        self.executed.append(np.array(action, dtype=np.float64).copy())
+        return self.env.step(action)
+
+
+def make_tree(post_exploration: bool = True, n_pe: int = 3, **kwargs) -> PostExplorationWrapper:
+    env = ActionRecorder(gym.make("GCRL/GrowingTreeGoal-v0"))
+    return PostExplorationWrapper(
+        env, post_exploration=post_exploration, n_pe=n_pe, scheduler_kwargs=TREE_GOALS, **kwargs
+    )
+
+
+def test_post_exploration_starts_on_success_lasts_n_pe_steps_and_reports_executed_actions() -> None:
+    env = make_tree(n_pe=3)
+    env.enable_post_exploration()
+    obs, _ = env.reset(seed=0, options={"goal": [0.5]})
+    zero = np.zeros(1, dtype=np.float32)
+    flags, executed = [], []
+    for _ in range(3):  # height stays 0: goal 0.5 not reached, no post-exploration
+        obs, reward, terminated, truncated, info = env.step(zero)
+        assert not info["post_exploration"] and not info["is_success"] and "executed_action" not in info
+        assert reward == 0.0 and not truncated
+    obs, _ = env.reset(options={"goal": [0.0]})  # already at the goal: reached on the first step
+    for _ in range(10):
+        obs, reward, terminated, truncated, info = env.step(zero)
+        flags.append(info["post_exploration"])
+        if info["post_exploration"]:
+            executed.append(info["executed_action"])
+        assert info["is_success"]  # sticky once reached: SB3's success rate is the goal-reaching rate
+        if truncated:
+            break
+    assert flags == [False, True, True, True] and truncated and not terminated
+    np.testing.assert_allclose(env.env.executed[-3:], executed)  # the base env ran the random actions
+    assert any(np.abs(a).sum() > 0 for a in executed)  # not the agent's zero action
+    assert env.post_exploration_steps == 3 and env.goals_reached == 1
+
+
+def test_without_post_exploration_the_episode_ends_at_the_goal() -> None:
+    env = make_tree(post_exploration=False)
+    env.enable_post_exploration()
+    env.reset(seed=0, options={"goal": [0.0]})
+    *_, truncated, info = env.step(np.zeros(1, dtype=np.float32))
+    assert truncated and info["is_success"] and not info["post_exploration"]
+    assert env.post_exploration_steps == 0
+
+
+def test_episodic_mode_keeps_the_env_goal_and_never_post_explores() -> None:
+    env = make_tree(n_pe=3)
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_allclose(obs["desired_goal"], [1.0])  # GrowingTree's own goal
+    successes = []
+    for _ in range(12):  # +0.1 per step reaches 1.0 on step 10; the env does not end, nothing is replaced
+        obs, reward, terminated, truncated, info = env.step(np.full(1, 0.1, dtype=np.float32))
+        assert "executed_action" not in info and not truncated
+        successes.append(info["is_success"])
+    assert successes.index(True) == 9 and env.post_exploration_steps == 0
+
+
+def test_wrapper_bad_input_names_the_fix() -> None:
+    with pytest.raises(TypeError, match="goal env"):
+        PostExplorationWrapper(gym.make("Pendulum-v1"), n_pe=3)
+    with pytest.raises(ValueError, match="exactly one"):
+        PostExplorationWrapper(gym.make("GCRL/GrowingTreeGoal-v0"), scheduler_kwargs=TREE_GOALS)
+    with pytest.raises(ValueError, match="visit counts"):
+        PostExplorationWrapper(gym.make("GCRL/GrowingTreeGoal-v0"), adaptive=True, scheduler="env_default")
+
+
+def test_her_buffer_stores_executed_actions_including_post_exploration_and_callback_logs() -> None:
+    env = make_tree(n_pe=5)
+    model = SAC(
+        "MultiInputPolicy",
+        env,
+        learning_starts=250,
+        batch_size=32,
+        policy_kwargs={"net_arch": [16]},
+        replay_buffer_class=ExecutedActionHerReplayBuffer,
+        replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
+        seed=0,
+    )
+    model.learn(400, callback=PostExplorationCallback(log_freq=100))
+    wrapper = model.get_env().envs[0].env  # Monitor -> PostExplorationWrapper
+    assert wrapper.post_exploration_steps > 0 and wrapper.goals_reached > 0
+    buffer = model.replay_buffer
+    n = buffer.pos
+    executed = np.array(wrapper.env.executed[-n:])  # the recorder sits below the wrapper
+    scaled = executed / 0.1  # Box(-0.1, 0.1) -> [-1, 1], as SB3 stores actions
+    np.testing.assert_allclose(buffer.actions[:n, 0], scaled, atol=1e-5)
+    # post-exploration steps belong to their HER episode: stored episode lengths cover them
+    lengths = buffer.ep_length[:n, 0]
+    assert lengths.max() > 1 and lengths.sum() > 0
+    assert model.logger.name_to_value.get("post_exploration/steps", 0) >= 0
+    stock = SAC(
+        "MultiInputPolicy",
+        make_tree(),
+        learning_starts=250,
+        replay_buffer_class=HerReplayBuffer,
+        policy_kwargs={"net_arch": [8]},
+    )
+    with pytest.raises(TypeError, match="ExecutedActionHerReplayBuffer"):
+        stock.learn(10, callback=PostExplorationCallback())
+
+
+def test_rl_zoo3_train_with_the_post_exploration_yaml(tmp_path: Path) -> None:
+    """Stock `rl_zoo3 train` with our FetchReach config (a few hundred steps)."""
+    config = Path(__file__).parents[1] / "zoo_configs" / "post_exploration_fetchreach_ddpg_on.yml"
+    zoo = Path(sys.executable).with_name("rl_zoo3")
+    result = subprocess.run(
+        [str(zoo), "train", "--algo", "ddpg", "--env", "FetchReach-v4", "--gym-packages", "sb3_gcrl", "-conf",
+         str(config), "-f", str(tmp_path / "logs"), "--eval-freq", "200", "--eval-episodes", "2", "-params",
+         "n_timesteps:300", "learning_starts:120", "batch_size:32", "policy_kwargs:dict(net_arch=[32])",
+         "--tensorboard-log", str(tmp_path / "tb")],
+        cwd=tmp_path, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert (tmp_path / "logs" / "ddpg" / "FetchReach-v4_1" / "FetchReach-v4.zip").is_file()
+    assert "IMGEP training mode on for 1 training env(s)" in result.stdout  # the callback switched the wrapper on
+    assert "goals_reached_rate=" in result.stdout and "visitation_entropy=" in result.stdout

@@ -25,7 +25,7 @@ from sb3_gcrl.goals.goal_space import BinnedGoalSpace
 from sb3_gcrl.imgep.policies import TabularGoalPolicy
 from sb3_gcrl.imgep.tabular_goal_env import TabularGoalEnv
 from sb3_gcrl.post_exploration.metrics import coverage, visitation_entropy
-from sb3_gcrl.post_exploration.rules import PostExplorationRule, ProportionalSteps
+from sb3_gcrl.post_exploration.rules import PostExplorationRule, ProportionalSteps, make_post_exploration_rule
 
 SelfTabularIMGEP = TypeVar("SelfTabularIMGEP", bound="TabularIMGEP")
 
@@ -36,13 +36,15 @@ class TabularIMGEP(BaseAlgorithm):
     :param policy: ``"TabularGoalPolicy"`` (or the class).
     :param env: a tabular env (Discrete observation and actions, e.g. ``"GCRL/FourRoomsTabular-v0"``) or a
         :class:`~sb3_gcrl.imgep.TabularGoalEnv`; plain tabular envs are wrapped in one (MiniGrid: goals are cells).
-    :param learning_rate: alpha of Eq. 6.2 (Table 6.2: 0.1).
+    :param learning_rate: alpha of Eq. 6.2 (Table 6.2: 0.1), or a schedule of the remaining progress.
     :param gamma: discount of Eq. 6.2 (Table 6.2: 0.99).
     :param epsilon: probability of a random action while going to the goal (Table 6.2: 0, 0.1 or 0.3).
     :param tau: temperature of the count-based novelty goal sampling, Eq. 6.5 (Table 6.2: 0 = uniform).
     :param post_exploration: switch post-exploration on/off (the chapter's ablation).
     :param post_exploration_rule: length rule once the goal is reached (default ``ProportionalSteps(0.5)``,
-        Table 6.2); :class:`~sb3_gcrl.post_exploration.NoveltyAdaptive` is our adaptive variant.
+        Table 6.2); :class:`~sb3_gcrl.post_exploration.NoveltyAdaptive` is our adaptive variant. A dict is passed
+        to :func:`~sb3_gcrl.post_exploration.make_post_exploration_rule` (YAML: ``{p_pe: 0.5}``,
+        ``{n_pe: 10}``, ``{adaptive: {beta: 1.0}}``).
     :param relabel_fraction: fraction of each trajectory's states relabeled as hindsight goals (Sec. 6.4.2:
         0.5); the post-exploration part is always relabeled in full.
     :param policy_kwargs: forwarded to the policy (``initial_value``).
@@ -66,7 +68,7 @@ class TabularIMGEP(BaseAlgorithm):
         epsilon: float = 0.1,
         tau: float = 0.0,
         post_exploration: bool = True,
-        post_exploration_rule: PostExplorationRule | None = None,
+        post_exploration_rule: PostExplorationRule | dict[str, Any] | None = None,
         relabel_fraction: float = 0.5,
         policy_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -76,18 +78,22 @@ class TabularIMGEP(BaseAlgorithm):
         device: str = "cpu",
         _init_setup_model: bool = True,
     ) -> None:
-        for name, value, low, high in (
-            ("learning_rate", learning_rate, 0.0, 1.0),
+        checks = [
             ("gamma", gamma, 0.0, 1.0),
             ("epsilon", epsilon, 0.0, 1.0),
             ("relabel_fraction", relabel_fraction, 0.0, 1.0),
-        ):
+        ]
+        if not callable(learning_rate):  # RL-Zoo passes a schedule
+            checks.append(("learning_rate", learning_rate, 0.0, 1.0))
+        for name, value, low, high in checks:
             if not (isinstance(value, (int, float)) and low <= value <= high):
                 raise ValueError(f"{name} must be a number in [{low}, {high}], got {value!r}")
         if learning_rate == 0:
             raise ValueError("learning_rate must be > 0 (Eq. 6.2 would never change the table)")
         if not (np.isfinite(tau) and tau >= 0):
             raise ValueError(f"tau must be a finite number >= 0 (Eq. 6.5; 0 = uniform), got {tau!r}")
+        if isinstance(post_exploration_rule, dict):
+            post_exploration_rule = make_post_exploration_rule(**post_exploration_rule)
         if post_exploration_rule is not None and not isinstance(post_exploration_rule, PostExplorationRule):
             raise TypeError(
                 "post_exploration_rule must be a sb3_gcrl.post_exploration rule (FixedSteps, ProportionalSteps, "
@@ -229,7 +235,7 @@ class TabularIMGEP(BaseAlgorithm):
         own terminations (lava) are terminal for every goal; truncation bootstraps.
         """
         q = self.policy.q
-        alpha, gamma = self.learning_rate, self.gamma
+        alpha, gamma = float(self.lr_schedule(self._current_progress_remaining)), self.gamma
         for t in range(length - 1, -1, -1):
             s, a, s2 = self._states[t], self._actions[t], self._next_states[t]
             hit = goals == self._next_goals[t]

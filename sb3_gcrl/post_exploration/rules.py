@@ -76,9 +76,12 @@ class NoveltyAdaptive(PostExplorationRule):
     """Post-explore longer from novel, far goals; skip well-known ones (ours, see the module docstring).
 
     ``scale = min(max_scale, (typical_visits / max(goal_visits, 1)) ** beta)``; the length is 0 when
-    ``scale < min_scale``, else ``max(min_steps, ceil(p_pe * l * scale))`` capped by ``max_steps``.
+    ``scale < min_scale``, else ``max(min_steps, ceil(base * scale))`` capped by ``max_steps``, with
+    ``base = p_pe * l`` (tabular, as :class:`ProportionalSteps`) or ``base = n_pe`` when ``n_pe`` is given (deep RL,
+    as :class:`FixedSteps`).
 
     :param p_pe: base fraction of the goal-reaching length (as :class:`ProportionalSteps`).
+    :param n_pe: base length in steps instead of ``p_pe * l`` (as :class:`FixedSteps`).
     :param beta: how strongly novelty stretches or shrinks the length (0 = :class:`ProportionalSteps`
         with a ``min_scale`` gate that never triggers).
     :param min_scale: below this novelty scale the reached goal is considered known: no post-exploration.
@@ -90,6 +93,7 @@ class NoveltyAdaptive(PostExplorationRule):
     def __init__(
         self,
         p_pe: float = 0.5,
+        n_pe: int | None = None,
         beta: float = 1.0,
         min_scale: float = 0.25,
         max_scale: float = 4.0,
@@ -104,7 +108,10 @@ class NoveltyAdaptive(PostExplorationRule):
             raise ValueError(f"Need 0 <= min_scale <= max_scale, got {min_scale!r} and {max_scale!r}")
         if max_steps is not None and int(max_steps) < min_steps:
             raise ValueError(f"max_steps ({max_steps}) must be >= min_steps ({min_steps})")
+        if n_pe is not None and (int(n_pe) != n_pe or n_pe < 1):
+            raise ValueError(f"n_pe must be a positive integer, got {n_pe!r}")
         self.p_pe = float(p_pe)
+        self.n_pe = None if n_pe is None else int(n_pe)
         self.beta = float(beta)
         self.min_scale = float(min_scale)
         self.max_scale = float(max_scale)
@@ -119,7 +126,8 @@ class NoveltyAdaptive(PostExplorationRule):
         scale = self.scale(goal_visits, typical_visits)
         if scale < self.min_scale:
             return 0
-        steps = max(self.min_steps, int(np.ceil(self.p_pe * steps_to_goal * scale)))
+        base = self.p_pe * steps_to_goal if self.n_pe is None else self.n_pe
+        steps = max(self.min_steps, int(np.ceil(base * scale)))
         return steps if self.max_steps is None else min(steps, self.max_steps)
 
 

@@ -1,0 +1,77 @@
+"""Callback that switches post-exploration on for the training env and logs the chapter's statistics."""
+
+from __future__ import annotations
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_gcrl.post_exploration.metrics import coverage, visitation_entropy
+
+
+class PostExplorationCallback(BaseCallback):
+    """Enable :class:`~sb3_gcrl.post_exploration.PostExplorationWrapper` training mode; log its statistics.
+
+    At the start of training it calls ``enable_post_exploration()`` on the training env only (the eval env that
+    RL-Zoo wraps the same way stays episodic) and checks that the replay buffer stores executed actions. Every
+    ``log_freq`` calls it records (``post_exploration/`` prefix): ``steps`` (post-exploration steps so far),
+    ``goals_reached_rate`` (commanded goals reached per episode), ``goal_space_size`` (visited bins),
+    ``visitation_entropy`` (Eq. 6.7 over the bins of the goal space) and ``coverage`` (fraction of those bins
+    visited; the bins cover the box ``goal_low``-``goal_high``, walls included).
+
+    :param log_freq: log every this many calls of ``on_step``.
+    :param require_executed_actions: raise when the replay buffer would store the ignored policy actions
+        (use :class:`~sb3_gcrl.her.ExecutedActionHerReplayBuffer`).
+    :param verbose: 1 prints when training mode is switched on and the statistics at the end of training.
+    """
+
+    def __init__(self, log_freq: int = 1000, require_executed_actions: bool = True, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        if int(log_freq) < 1:
+            raise ValueError(f"log_freq must be >= 1, got {log_freq}")
+        self.log_freq = int(log_freq)
+        self.require_executed_actions = require_executed_actions
+
+    def _on_training_start(self) -> None:
+        env = self.training_env
+        if not env.has_attr("enable_post_exploration"):
+            raise TypeError(
+                "PostExplorationCallback: the training env is not wrapped in "
+                "sb3_gcrl.post_exploration.PostExplorationWrapper; add it (e.g. env_wrapper in the RL-Zoo YAML)"
+            )
+        buffer = getattr(self.model, "replay_buffer", None)
+        if self.require_executed_actions and not hasattr(buffer, "executed_actions"):
+            raise TypeError(
+                "PostExplorationCallback: the replay buffer stores the agent's actions, not the random actions "
+                "executed during post-exploration; use replay_buffer_class=sb3_gcrl.her.ExecutedActionHerReplayBuffer "
+                "(YAML: \"__import__('sb3_gcrl.her').her.ExecutedActionHerReplayBuffer\")"
+            )
+        env.env_method("enable_post_exploration")
+        if self.verbose > 0:
+            print(f"PostExplorationCallback: IMGEP training mode on for {env.num_envs} training env(s)")
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.log_freq == 0:
+            self.log_statistics()
+        return True
+
+    def _on_training_end(self) -> None:
+        self.log_statistics()
+        if self.verbose > 0:
+            values = self.logger.name_to_value
+            print(
+                "PostExplorationCallback: "
+                + ", ".join(f"{key.split('/')[1]}={values[key]:.4g}" for key in values if key.startswith("post_expl"))
+            )
+
+    def log_statistics(self) -> None:
+        """Record the statistics in the SB3 logger."""
+        env = self.training_env
+        episodes = sum(env.get_attr("episodes"))
+        self.logger.record("post_exploration/steps", sum(env.get_attr("post_exploration_steps")))
+        self.logger.record("post_exploration/goals_reached_rate", sum(env.get_attr("goals_reached")) / max(episodes, 1))
+        spaces = [space for space in env.get_attr("goal_space") if space is not None]
+        if spaces:
+            counts = np.sum([space.counts for space in spaces], axis=0)
+            self.logger.record("post_exploration/goal_space_size", int(np.count_nonzero(counts)))
+            self.logger.record("post_exploration/visitation_entropy", visitation_entropy(counts))
+            self.logger.record("post_exploration/coverage", coverage(counts))
