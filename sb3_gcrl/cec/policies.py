@@ -1,0 +1,113 @@
+"""Policy of CEC: the CEC memory plus exploration (thesis Algorithm 1, SELECT ACTION)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from sb3_gcrl.memory.cec_memory import CECMemory
+from sb3_gcrl.memory.control import EpisodicControlPolicy
+from sb3_gcrl.memory.knn import KNNBackend
+
+
+class CECPolicy(EpisodicControlPolicy):
+    """Continuous episodic control policy (thesis Section 4.4).
+
+    Stochastic action (training): sample a stored action of the ``k`` nearest rows within ``n * d``
+    by ``softmax(v / tau)`` (Eq. 4.5); with probability ``exploration_rate`` (epsilon) add
+    ``N(0, noise_std^2)`` noise; if no row is within ``n * d``, a uniform random action. Actions
+    are clipped to the action space.
+    Deterministic action (evaluation): the action of the single nearest row, no threshold; while the
+    memory is empty, the centre of the action space.
+
+    :param observation_space: observation space.
+    :param action_space: bounded ``Box`` action space.
+    :param capacity: memory rows.
+    :param distance_threshold: ``d`` (Table 4.4).
+    :param filter_factor: ``n`` (Table 4.4).
+    :param n_neighbors: ``k`` (Table 4.4).
+    :param temperature: ``tau`` (Table 4.4, Eq. 4.5).
+    :param noise_std: ``sigma`` (Table 4.4), in action units.
+    :param knn_backend: kNN backend (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
+    :param rebuild_threshold: KD-tree rebuild threshold (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
+    :param projection_dim: random-projection dimension (``None``: raw observations).
+    :param observation_keys: Dict observation keys forming the key.
+    :param seed: seed of the projection and of action sampling.
+    """
+
+    action_space: spaces.Box
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Box,
+        capacity: int = 1_000_000,
+        distance_threshold: float = 0.1,
+        filter_factor: float = 1.0,
+        n_neighbors: int = 5,
+        temperature: float = 0.1,
+        noise_std: float = 0.3,
+        knn_backend: KNNBackend = "auto",
+        rebuild_threshold: int | None = None,
+        projection_dim: int | None = None,
+        observation_keys: Sequence[str] | None = None,
+        seed: int | None = None,
+    ) -> None:
+        super().__init__(observation_space, action_space, projection_dim, observation_keys, seed)
+        if not noise_std >= 0:
+            raise ValueError(f"noise_std (sigma) must be >= 0, got {noise_std}")
+        self.noise_std = float(noise_std)
+        self.knn_backend = knn_backend
+        self.rebuild_threshold = rebuild_threshold
+        self.memory = CECMemory(
+            key_dim=self.embedding.key_dim,
+            action_dim=int(np.prod(action_space.shape)),
+            capacity=capacity,
+            distance_threshold=distance_threshold,
+            filter_factor=filter_factor,
+            n_neighbors=n_neighbors,
+            temperature=temperature,
+            knn_backend=knn_backend,
+            rebuild_threshold=rebuild_threshold,
+        )
+        self._low = action_space.low.astype(np.float32).reshape(-1)
+        self._high = action_space.high.astype(np.float32).reshape(-1)
+
+    def act(self, keys: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Actions ``(n, *action_shape)`` for keys ``(n, key_dim)`` and the mask of memory hits."""
+        n = len(keys)
+        if deterministic:
+            actions, found = self.memory.greedy_actions(keys)
+            if not found.all():
+                actions[~found] = (self._low + self._high) / 2
+        else:
+            actions, found = self.memory.select_actions(keys, self.rng)
+            noisy = found & (self.rng.random(n) < self.exploration_rate)
+            if noisy.any():
+                actions[noisy] += self.rng.normal(0.0, self.noise_std, size=(int(noisy.sum()), actions.shape[1]))
+            if not found.all():
+                actions[~found] = self.rng.uniform(self._low, self._high, size=(int((~found).sum()), len(self._low)))
+            np.clip(actions, self._low, self._high, out=actions)
+        return actions.reshape(n, *self.action_space.shape), found
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        memory = self.memory
+        data.update(
+            capacity=memory.capacity,
+            distance_threshold=memory.distance_threshold,
+            filter_factor=memory.filter_factor,
+            n_neighbors=memory.n_neighbors,
+            temperature=memory.temperature,
+            noise_std=self.noise_std,
+            knn_backend=self.knn_backend,
+            rebuild_threshold=self.rebuild_threshold,
+        )
+        return data
+
+
+MlpPolicy = CECPolicy
+MultiInputPolicy = CECPolicy

@@ -1,0 +1,132 @@
+"""Model-Free Episodic Control (MFEC; Blundell et al., 2016) as used in thesis Section 5.2.3."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
+
+from sb3_gcrl.memory.control import EpisodicControlAlgorithm
+from sb3_gcrl.memory.knn import KNNBackend
+from sb3_gcrl.mfec.policies import MFECPolicy
+
+SelfMFEC = TypeVar("SelfMFEC", bound="MFEC")
+
+
+class MFEC(EpisodicControlAlgorithm):
+    """Model-free episodic control: one non-parametric value table per discrete action.
+
+    After each finished episode, ``Q_ec(s_t, a_t) <- max(G_t, Q_ec(s_t, a_t))`` on an exact key match,
+    else ``G_t`` is added (Eq. 5.2), evicting the least recently updated row of the action's table
+    when it is full. Acting: ``argmax_a`` of the stored value (exact match) or of the mean of the
+    ``k`` nearest rows' values; actions whose table holds ``<= k`` rows count as ``+inf`` (tried
+    first); epsilon-greedy on top. Keys are the observation randomly projected to
+    ``projection_dim`` dims (8 in the 2M code). This is the EC half of 2M (thesis Ch. 5).
+
+    :param policy: ``"MFECPolicy"`` (aliases ``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"``).
+    :param env: env with a ``Discrete`` action space (any number of envs), or its registered id.
+    :param capacity_per_action: rows per action table (2M code: ``1e5 / (2 * n_actions)``; MFEC paper: 1e6).
+    :param n_neighbors: ``k`` of the kNN estimate (2M code: 3).
+    :param gamma: discount of the Monte-Carlo returns.
+    :param exploration_initial_eps: initial epsilon.
+    :param exploration_final_eps: final epsilon.
+    :param exploration_fraction: fraction of the budget over which epsilon decays linearly.
+    :param projection_dim: Gaussian random projection dimension, ``None`` for raw observations
+        (fine for small tabular/discrete observations such as WindyGrid).
+    :param observation_keys: Dict observation keys that form the key, in order.
+    :param knn_backend: ``"auto"``, ``"kdtree"`` or ``"flat"``.
+    :param rebuild_threshold: KD-tree rebuild threshold (``None``: automatic).
+    :param stats_window_size: episodes averaged in the rollout logs.
+    :param tensorboard_log: tensorboard log folder.
+    :param policy_kwargs: extra policy arguments (override the ones above).
+    :param verbose: 0 silent, 1 info.
+    :param seed: seed (projection matrix, action sampling, envs).
+    :param device: unused (numpy on CPU); kept for the SB3 API.
+    :param _init_setup_model: build the policy at construction.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "MFECPolicy": MFECPolicy,
+        "MlpPolicy": MFECPolicy,
+        "CnnPolicy": MFECPolicy,
+        "MultiInputPolicy": MFECPolicy,
+    }
+    policy: MFECPolicy
+
+    def __init__(
+        self,
+        policy: str | type[MFECPolicy],
+        env: GymEnv | str,
+        capacity_per_action: int = 100_000,
+        n_neighbors: int = 3,
+        gamma: float = 0.99,
+        exploration_initial_eps: float = 0.1,
+        exploration_final_eps: float = 0.005,
+        exploration_fraction: float = 0.1,
+        projection_dim: int | None = 8,
+        observation_keys: Sequence[str] | None = None,
+        knn_backend: KNNBackend = "auto",
+        rebuild_threshold: int | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "cpu",
+        _init_setup_model: bool = True,
+    ) -> None:
+        self.capacity_per_action = int(capacity_per_action)
+        self.n_neighbors = n_neighbors
+        self.knn_backend = knn_backend
+        self.rebuild_threshold = rebuild_threshold
+        super().__init__(
+            policy,
+            env,
+            gamma=gamma,
+            exploration_initial_eps=exploration_initial_eps,
+            exploration_final_eps=exploration_final_eps,
+            exploration_fraction=exploration_fraction,
+            projection_dim=projection_dim,
+            observation_keys=observation_keys,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=_init_setup_model,
+        )
+
+    def _check_spaces(self, observation_space: spaces.Space, action_space: spaces.Space) -> None:
+        if not isinstance(action_space, spaces.Discrete):
+            raise ValueError(
+                f"MFEC needs a Discrete action space, got {action_space}; use sb3_gcrl.CEC for continuous (Box) actions"
+            )
+
+    def _policy_memory_kwargs(self) -> dict[str, Any]:
+        return dict(
+            capacity_per_action=self.capacity_per_action,
+            n_neighbors=self.n_neighbors,
+            knn_backend=self.knn_backend,
+            rebuild_threshold=self.rebuild_threshold,
+        )
+
+    def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
+        added = self.policy.memory.update_episode(keys, actions - self.policy._action_start, returns)
+        return {"added": added, "updated": len(keys) - added}
+
+    def learn(
+        self: SelfMFEC,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 10,
+        tb_log_name: str = "MFEC",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfMFEC:
+        return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)

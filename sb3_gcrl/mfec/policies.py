@@ -1,0 +1,94 @@
+"""Policy of MFEC: per-action episodic value tables, greedy with epsilon-random exploration."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from sb3_gcrl.memory.control import EpisodicControlPolicy
+from sb3_gcrl.memory.knn import KNNBackend
+from sb3_gcrl.memory.mfec_memory import MFECMemory
+
+
+class MFECPolicy(EpisodicControlPolicy):
+    """Model-free episodic control policy (thesis Section 5.2.3).
+
+    Greedy action: ``argmax_a Q_ec(s, a)`` with the MFEC estimate (exact match, else mean of the
+    ``k`` nearest rows, ``+inf`` for actions whose table holds ``<= k`` rows); ties are broken
+    uniformly at random when stochastic and by lowest index when deterministic. Stochastic action:
+    a uniform random action with probability ``exploration_rate`` (epsilon-greedy).
+
+    :param observation_space: observation space.
+    :param action_space: ``Discrete`` action space.
+    :param capacity_per_action: rows per action table.
+    :param n_neighbors: ``k`` of the kNN estimate.
+    :param knn_backend: kNN backend (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
+    :param rebuild_threshold: KD-tree rebuild threshold.
+    :param projection_dim: random-projection dimension (``None``: raw observations).
+    :param observation_keys: Dict observation keys forming the key.
+    :param seed: seed of the projection and of action sampling.
+    """
+
+    action_space: spaces.Discrete
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Discrete,
+        capacity_per_action: int = 100_000,
+        n_neighbors: int = 3,
+        knn_backend: KNNBackend = "auto",
+        rebuild_threshold: int | None = None,
+        projection_dim: int | None = 8,
+        observation_keys: Sequence[str] | None = None,
+        seed: int | None = None,
+    ) -> None:
+        super().__init__(observation_space, action_space, projection_dim, observation_keys, seed)
+        self.knn_backend = knn_backend
+        self.rebuild_threshold = rebuild_threshold
+        self.memory = MFECMemory(
+            key_dim=self.embedding.key_dim,
+            n_actions=int(action_space.n),
+            capacity_per_action=capacity_per_action,
+            n_neighbors=n_neighbors,
+            knn_backend=knn_backend,
+            rebuild_threshold=rebuild_threshold,
+        )
+        self._action_start = int(action_space.start)
+
+    def q_values(self, keys: np.ndarray) -> np.ndarray:
+        """``Q_ec(s, .)`` for a batch of keys: ``(n, n_actions)``."""
+        return self.memory.estimate(keys)
+
+    def act(self, keys: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Actions ``(n,)`` and the mask of queries whose chosen action had a finite estimate."""
+        q = self.memory.estimate(keys)
+        n, n_actions = q.shape
+        if deterministic:
+            actions = q.argmax(axis=1)
+        else:
+            ties = q == q.max(axis=1, keepdims=True)
+            actions = (self.rng.random(q.shape) * ties).argmax(axis=1)
+            explore = self.rng.random(n) < self.exploration_rate
+            if explore.any():
+                actions[explore] = self.rng.integers(n_actions, size=int(explore.sum()))
+        known = np.isfinite(q[np.arange(n), actions])
+        return actions + self._action_start, known
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            capacity_per_action=self.memory.capacity_per_action,
+            n_neighbors=self.memory.n_neighbors,
+            knn_backend=self.knn_backend,
+            rebuild_threshold=self.rebuild_threshold,
+        )
+        return data
+
+
+MlpPolicy = MFECPolicy
+CnnPolicy = MFECPolicy
+MultiInputPolicy = MFECPolicy
