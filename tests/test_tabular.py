@@ -83,6 +83,15 @@ def test_episodic_control_learns_chain_exactly():
     assert (model.predict(np.arange(4), deterministic=True)[0] == 1).all()
 
 
+@pytest.mark.parametrize("update_truncated", [False, True])
+def test_episodic_control_skips_truncated_episodes(update_truncated):
+    # the goal (4 steps away) is never reached within 3 steps: every episode is cut by the time limit
+    env = gym.wrappers.TimeLimit(ChainEnv(), max_episode_steps=3)
+    model = TabularEpisodicControl(env=env, update_truncated=update_truncated, seed=0)
+    model.learn(60)
+    assert np.isfinite(model.ec_table).any() == update_truncated
+
+
 def test_q_learning_learns_chain():
     model = TabularQLearning(env=ChainEnv(), gamma=0.9, learning_rate=0.5, train_freq=1, batch_size=8, seed=0)
     model.learn(1500)

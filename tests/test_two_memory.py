@@ -268,7 +268,7 @@ def test_two_memory_sac_dispatch_and_round_trip(tmp_path):
     env = make_vec_env(Slider, n_envs=2, seed=0)
     model = TwoMemorySAC(
         "MlpPolicy", env, p_ec_schedule=0.5, seed=0, learning_starts=20, batch_size=16, buffer_size=2_000,
-        policy_kwargs=dict(net_arch=[16], ec_distance_threshold=0.05),
+        policy_kwargs=dict(net_arch=[16], ec_distance_threshold=0.05, ec_update_truncated=True),
     )  # fmt: skip
     recorder = RecordDispatch()
     model.learn(300, callback=recorder)

@@ -21,6 +21,9 @@ class TabularEpisodicControl(TabularAlgorithm):
     :param policy: policy class or alias.
     :param env: env with Discrete observation and action spaces.
     :param ec_gamma: discount of the stored returns (None: ``gamma``).
+    :param update_truncated: also learn from time-limit-truncated episodes. Off by default: a cut episode's
+        returns are not returns of the policy (with WindyGrid's -1 per step the steps just before the cut would get
+        the best values of all, and the greedy policy would loop until the time limit).
     :param kwargs: the other :class:`~sb3_gcrl.tabular.tabular_algorithm.TabularAlgorithm` arguments
         (``learning_rate``, ``buffer_size``, ``batch_size``, ``train_freq`` have no effect here).
     """
@@ -33,10 +36,12 @@ class TabularEpisodicControl(TabularAlgorithm):
         policy: str | type[BasePolicy] = "TabularECPolicy",
         env: Any = None,
         ec_gamma: float | None = None,
+        update_truncated: bool = False,
         **kwargs: Any,
     ) -> None:
         kwargs.setdefault("buffer_size", 1)
         self.ec_gamma = ec_gamma
+        self.update_truncated = update_truncated
         super().__init__(policy, env, **kwargs)
         if self.ec_gamma is not None and not 0.0 <= self.ec_gamma <= 1.0:
             raise ValueError(f"ec_gamma must be in [0, 1], got {self.ec_gamma}")
@@ -68,6 +73,8 @@ class TabularEpisodicControl(TabularAlgorithm):
         gamma = self.gamma if self.ec_gamma is None else self.ec_gamma
         for env_index in np.flatnonzero(dones):
             states, actions, rewards = self._recorder.pop(env_index)
+            if infos[env_index].get("TimeLimit.truncated", False) and not self.update_truncated:
+                continue
             self.policy.update_episode(states, actions, discounted_returns(rewards, gamma))
         self._last_obs = new_obs
 

@@ -162,6 +162,7 @@ class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, BasePolicy):
     :param data_sharing: update the EC table with every episode (True, thesis) or only with its own.
     :param score_window: n of Eq. 5.6.
     :param ec_gamma: discount of the returns stored in the EC table.
+    :param ec_update_truncated: also learn from time-limit-truncated episodes (see ``TwoMemoryDispatchMixin``).
     :param unseen_value: EC value of an unvisited (s, a).
     :param initial_q: initial Q-value.
     """
@@ -175,18 +176,20 @@ class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, BasePolicy):
         data_sharing: bool = True,
         score_window: int = 50,
         ec_gamma: float = 0.99,
+        ec_update_truncated: bool = False,
         unseen_value: float = 0.0,
         initial_q: float = 0.0,
     ) -> None:
         BasePolicy.__init__(self, observation_space, action_space)
         self.ec_policy = TabularECPolicy(observation_space, action_space, unseen_value=unseen_value)
         self.q_policy = TabularQPolicy(observation_space, action_space, initial_value=initial_q)
-        self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma)
+        self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated)
         self._constructor_kwargs = dict(
             p_ec_schedule=p_ec_schedule,
             data_sharing=data_sharing,
             score_window=score_window,
             ec_gamma=ec_gamma,
+            ec_update_truncated=ec_update_truncated,
             unseen_value=unseen_value,
             initial_q=initial_q,
         )

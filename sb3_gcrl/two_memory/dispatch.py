@@ -61,18 +61,24 @@ class TwoMemoryDispatchMixin:
         data_sharing: bool,
         score_window: int,
         ec_gamma: float,
+        ec_update_truncated: bool = False,
     ) -> None:
         """:param p_ec_schedule: schedule of p_ec (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`).
         :param data_sharing: update the episodic memory with every episode (thesis default) instead of only its own.
             The algorithm applies the same switch to the replay buffer.
         :param score_window: n of Eq. 5.6 (50 in the thesis).
         :param ec_gamma: discount of the returns stored in the episodic memory.
+        :param ec_update_truncated: also write time-limit-truncated episodes into the episodic memory. Off by
+            default: the return of a cut episode is not a return of the policy (with negative rewards, e.g.
+            WindyGrid's -1 per step, the last steps before the cut would get the best values of all and EC would
+            loop until the time limit). Their returns still count in the score windows.
         """
         if not 0.0 <= ec_gamma <= 1.0:
             raise ValueError(f"ec_gamma must be in [0, 1], got {ec_gamma}")
         self.p_ec_schedule = make_pec_schedule(p_ec_schedule)
         self.data_sharing = bool(data_sharing)
         self.ec_gamma = float(ec_gamma)
+        self.ec_update_truncated = bool(ec_update_truncated)
         self.score_windows = ScoreWindows(score_window)
         #: memory running each env's current episode (EPISODIC, PARAMETRIC or UNASSIGNED)
         self.acting_memory = np.zeros(0, dtype=np.int8)
@@ -110,7 +116,12 @@ class TwoMemoryDispatchMixin:
         return self.acting_memory
 
     def record_step(
-        self, observations: np.ndarray, actions: np.ndarray, rewards: np.ndarray, dones: np.ndarray
+        self,
+        observations: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        dones: np.ndarray,
+        truncated: np.ndarray | None = None,
     ) -> list[tuple[int, int, float]]:
         """Record one step of every env; finish the episodes that ended.
 
@@ -118,6 +129,7 @@ class TwoMemoryDispatchMixin:
         :param actions: executed actions (env space), shape (n_envs, *action_shape).
         :param rewards: rewards, shape (n_envs,).
         :param dones: episode ends (termination or truncation), shape (n_envs,).
+        :param truncated: which of those ends are time-limit truncations (None: none).
         :return: ``(env_index, memory, undiscounted return)`` for each finished episode.
         """
         n_envs = len(rewards)
@@ -139,7 +151,8 @@ class TwoMemoryDispatchMixin:
             episode_return = float(episode_rewards.sum())
             self.score_windows.push(memory, episode_return)
             self.episode_counts[memory] += 1
-            if self.data_sharing or memory == EPISODIC:
+            cut = truncated is not None and bool(truncated[env_index])
+            if (self.data_sharing or memory == EPISODIC) and (self.ec_update_truncated or not cut):
                 self.update_episodic_memory(
                     episode_obs, episode_actions, discounted_returns(episode_rewards, self.ec_gamma)
                 )
@@ -286,7 +299,8 @@ class TwoMemoryAlgorithmMixin:
             replay_buffer.next_sources[:] = self.policy.acting_memory
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)  # type: ignore[misc]
         # the episodic memory stores actions as the policy outputs them (scaled to [-1, 1] for Box spaces)
-        finished = self.policy.record_step(observations, buffer_action, rewards, dones)
+        truncated = np.array([done and info.get("TimeLimit.truncated", False) for done, info in zip(dones, infos)])
+        finished = self.policy.record_step(observations, buffer_action, rewards, dones, truncated)
         if finished:
             self._log_two_memory(replay_buffer)
 

@@ -93,6 +93,7 @@ class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
     :param data_sharing: update MFEC with every episode (thesis) or only with its own (2Mw/oDS).
     :param score_window: n of Eq. 5.6.
     :param ec_gamma: discount of the returns stored in MFEC.
+    :param ec_update_truncated: also learn from time-limit-truncated episodes (see ``TwoMemoryDispatchMixin``).
     :param ec_projection_dim: random-projection dimension of the MFEC keys (None: no projection).
     :param ec_capacity_per_action: rows per action table (None: authors' ``1e5 / (2 * n_actions)``).
     :param ec_n_neighbors: k of the MFEC estimate (Table 5.1: 3).
@@ -110,6 +111,7 @@ class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
         data_sharing: bool = True,
         score_window: int = 50,
         ec_gamma: float = 0.99,
+        ec_update_truncated: bool = False,
         ec_projection_dim: int | None = 8,
         ec_capacity_per_action: int | None = None,
         ec_n_neighbors: int = 3,
@@ -118,7 +120,7 @@ class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
         **kwargs: Any,
     ) -> None:
         DQNPolicy.__init__(self, observation_space, action_space, lr_schedule, **kwargs)
-        self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma)
+        self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated)
         if ec_seed is None:
             ec_seed = int(np.random.randint(2**31 - 1))
         n_actions = int(action_space.n)
@@ -138,6 +140,7 @@ class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
             data_sharing=data_sharing,
             score_window=score_window,
             ec_gamma=ec_gamma,
+            ec_update_truncated=ec_update_truncated,
             ec_projection_dim=ec_projection_dim,
             ec_capacity_per_action=ec_capacity_per_action,
             ec_n_neighbors=ec_n_neighbors,
@@ -197,6 +200,7 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
     :param data_sharing: update CEC with every episode or only with its own.
     :param score_window: n of Eq. 5.6.
     :param ec_gamma: discount of the returns stored in CEC.
+    :param ec_update_truncated: also learn from time-limit-truncated episodes (see ``TwoMemoryDispatchMixin``).
     :param ec_projection_dim: random-projection dimension of the CEC keys (None: none).
     :param ec_capacity: CEC rows.
     :param ec_distance_threshold: d of Table 4.4.
@@ -219,6 +223,7 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
         data_sharing: bool = True,
         score_window: int = 50,
         ec_gamma: float = 0.99,
+        ec_update_truncated: bool = False,
         ec_projection_dim: int | None = None,
         ec_capacity: int = 100_000,
         ec_distance_threshold: float = 0.1,
@@ -232,7 +237,7 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
         **kwargs: Any,
     ) -> None:
         SACPolicy.__init__(self, observation_space, action_space, lr_schedule, **kwargs)
-        self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma)
+        self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated)
         if not 0.0 <= ec_epsilon <= 1.0:
             raise ValueError(f"ec_epsilon must be in [0, 1], got {ec_epsilon}")
         if ec_noise_std < 0:
@@ -258,6 +263,7 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
             data_sharing=data_sharing,
             score_window=score_window,
             ec_gamma=ec_gamma,
+            ec_update_truncated=ec_update_truncated,
             ec_projection_dim=ec_projection_dim,
             ec_capacity=ec_capacity,
             ec_distance_threshold=ec_distance_threshold,
