@@ -4,8 +4,10 @@ Importing the package registers every environment (ours under the ``GCRL/`` name
 gymnasium-robotics and MinAtar ones), so ``rl_zoo3 train --gym-packages sb3_gcrl`` sees them.
 """
 
+from sb3_gcrl.cec import CEC
 from sb3_gcrl.envs import register_envs
 from sb3_gcrl.imgep import TabularIMGEP
+from sb3_gcrl.mfec import MFEC
 from sb3_gcrl.post_exploration import PostExplorationCallback, PostExplorationWrapper
 from sb3_gcrl.tabular import TabularEpisodicControl, TabularQLearning, TabularTwoMemory
 from sb3_gcrl.two_memory import TwoMemoryDQN, TwoMemorySAC
@@ -14,6 +16,8 @@ from sb3_gcrl.version import __version__
 register_envs()
 
 __all__ = [
+    "CEC",
+    "MFEC",
     "PostExplorationCallback",
     "PostExplorationWrapper",
     "TabularIMGEP",

@@ -15,6 +15,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 ALGORITHMS: dict[str, str] = {}
 ALGORITHMS["two_memory_dqn"] = "sb3_gcrl.two_memory:TwoMemoryDQN"
 ALGORITHMS["two_memory_sac"] = "sb3_gcrl.two_memory:TwoMemorySAC"
+ALGORITHMS["cec"] = "sb3_gcrl.cec:CEC"
+ALGORITHMS["mfec"] = "sb3_gcrl.mfec:MFEC"
 ALGORITHMS["tabular_q"] = "sb3_gcrl.tabular:TabularQLearning"
 ALGORITHMS["tabular_ec"] = "sb3_gcrl.tabular:TabularEpisodicControl"
 ALGORITHMS["tabular_2m"] = "sb3_gcrl.tabular:TabularTwoMemory"
