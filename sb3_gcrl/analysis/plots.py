@@ -59,8 +59,8 @@ def plot_learning_curves(
         raise ValueError("No curves to plot (every run failed or none finished)")
     colors = method_colors(list(dict.fromkeys(aggregated["method"])))
     figure = Figure(figsize=(4.6 * len(envs), 3.4), layout="constrained")
-    axes = figure.subplots(1, len(envs), squeeze=False)[0]
-    with sns.axes_style("whitegrid"):
+    with sns.axes_style("whitegrid"):  # the style applies to axes created inside the block
+        axes = figure.subplots(1, len(envs), squeeze=False)[0]
         for ax, env_id in zip(axes, envs):
             metric = metrics if isinstance(metrics, str) else metrics[env_id]
             for method, curve in aggregated[aggregated["env"] == env_id].groupby("method", sort=False):

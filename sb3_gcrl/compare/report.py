@@ -118,10 +118,21 @@ def summarize(
         env_scores = run_scores(env_curves, metric, final_window, threshold)
         scores.append(env_scores.assign(metric=metric))
         summaries.append(aggregate_scores(env_scores, min_runs_for_iqm, planned_runs=planned))
-    scores_table = pd.concat(scores, ignore_index=True) if scores else pd.DataFrame()
-    summary = pd.concat(summaries, ignore_index=True) if summaries else pd.DataFrame()
+    # tables list envs and methods in the order the user gave them (groupby sorts them alphabetically)
+    order = {key: rank for rank, key in enumerate(dict.fromkeys((s.env_id, s.method) for s in specs))}
+    curves = _in_order(curves, order)
+    scores_table = _in_order(pd.concat(scores, ignore_index=True), order) if scores else pd.DataFrame()
+    summary = _in_order(pd.concat(summaries, ignore_index=True), order) if summaries else pd.DataFrame()
     table = format_table(summary, metrics) if len(summary) else "(no finished runs)"
     return Summary(curves, scores_table, summary, metrics, failed, table)
+
+
+def _in_order(table: pd.DataFrame, order: dict[tuple[str, str], int]) -> pd.DataFrame:
+    """Rows sorted (stably) by the planned (env, method) order."""
+    if not len(table):
+        return table
+    rank = [order[key] for key in zip(table["env"], table["method"])]
+    return table.iloc[sorted(range(len(table)), key=rank.__getitem__)].reset_index(drop=True)
 
 
 def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, wall_time_s: float) -> None:
@@ -138,9 +149,12 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
     atomic_write_text(output / "summary.csv", summary.summary.to_csv(index=False))
     figure_md = ""
     if len(summary.curves):
+        methods = {method: rank for rank, method in enumerate(dict.fromkeys(summary.curves["method"]))}
         aggregated = pd.concat(
             [
-                aggregate_curves(group, summary.metrics[env_id])
+                aggregate_curves(group, summary.metrics[env_id]).sort_values(
+                    "method", key=lambda m: m.map(methods), kind="stable"
+                )
                 for env_id, group in summary.curves.groupby("env", sort=False)
             ]
         )
