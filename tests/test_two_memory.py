@@ -287,6 +287,27 @@ def test_two_memory_sac_dispatch_and_round_trip(tmp_path):
     np.testing.assert_array_equal(loaded.policy.score_windows.returns, model.policy.score_windows.returns)
 
 
+def test_stock_dqn_with_two_memory_policy_and_callback():
+    from stable_baselines3 import DQN
+
+    from sb3_gcrl.two_memory import TwoMemoryCallback, TwoMemoryDQNPolicy
+
+    kwargs = {k: v for k, v in TINY_DQN.items() if k != "policy_kwargs"}
+    policy_kwargs = dict(TINY_DQN["policy_kwargs"], p_ec_schedule=0.5)
+    model = DQN(TwoMemoryDQNPolicy, make_vec_env(Corridor, n_envs=2, seed=0), policy_kwargs=policy_kwargs, seed=0,
+                **kwargs)  # fmt: skip
+    recorder = RecordDispatch()
+    model.learn(400, callback=[recorder, TwoMemoryCallback()])
+    memories, dones = np.array(recorder.memories), np.array(recorder.dones)
+    # (-1: DQN's random warm-up step before the callback drew the episode's memory)
+    both_assigned = (memories[1:] != UNASSIGNED) & (memories[:-1] != UNASSIGNED)
+    assert not ((memories[1:] != memories[:-1]) & both_assigned & ~dones[:-1]).any()
+    assert model.policy.episode_counts.min() > 0 and len(model.policy.mfec) > 0
+    assert model.policy.episode_counts.sum() == dones.sum()
+    with pytest.raises(ValueError, match="already does the 2M bookkeeping"):
+        TwoMemoryDQN("MlpPolicy", Corridor(), **TINY_DQN).learn(10, callback=TwoMemoryCallback())
+
+
 def test_minatar_cnn_matches_authors_network():
     env = gym.make("MinAtar/Breakout-v1")
     model = TwoMemoryDQN("MinAtarPolicy", env, learning_starts=10, buffer_size=100)

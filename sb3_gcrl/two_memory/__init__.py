@@ -1,6 +1,7 @@
 """Two-memory (2M) agents, thesis Ch. 5: per-episode dispatch between episodic control and an RL agent."""
 
 from sb3_gcrl.two_memory.buffers import SourceTaggedReplayBuffer
+from sb3_gcrl.two_memory.callbacks import TwoMemoryCallback
 from sb3_gcrl.two_memory.policies import (
     MinAtarCNN,
     MinAtarDQNPolicy,
@@ -31,6 +32,7 @@ __all__ = [
     "PecSchedule",
     "ScoreWindows",
     "SourceTaggedReplayBuffer",
+    "TwoMemoryCallback",
     "TwoMemoryDQN",
     "TwoMemoryDQNPolicy",
     "TwoMemoryMinAtarPolicy",

@@ -291,10 +291,10 @@ class TwoMemoryAlgorithmMixin:
         dones: np.ndarray,
         infos: list[dict[str, Any]],
     ) -> None:
-        if self._vec_normalize_env is not None:
-            observations, rewards = self._last_original_obs, self._vec_normalize_env.get_original_reward()
-        else:
-            observations, rewards = self._last_obs, reward
+        # the episodic memory is keyed on what the policy sees (normalised if VecNormalize is used); the scores and
+        # stored returns use the env's own rewards
+        observations = self._last_obs
+        rewards = reward if self._vec_normalize_env is None else self._vec_normalize_env.get_original_reward()
         if isinstance(replay_buffer, SourceTaggedReplayBuffer):
             replay_buffer.next_sources[:] = self.policy.acting_memory
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)  # type: ignore[misc]
