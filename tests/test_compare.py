@@ -23,6 +23,7 @@ from sb3_gcrl.compare import EvaluationRecorder, LocalProcessBackend, compare, p
 from sb3_gcrl.compare.cli import EXIT_USAGE
 from sb3_gcrl.compare.cli import main as compare_main
 from sb3_gcrl.compare.methods import check_env_id
+from sb3_gcrl.compare.report import summarize, write_outputs
 from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run
 from sb3_gcrl.compare.runner import plan_runs
 from sb3_gcrl.compare.storage import is_finished, read_run_record, write_run_result
@@ -326,3 +327,35 @@ def test_evaluation_schedule_is_in_env_steps_and_reads_is_success():
     assert sum(reported) == 24
     with pytest.raises(ValueError, match="eval_freq must be >= 1"):
         EvaluationRecorder(eval_env, eval_freq=0)
+
+
+TABULAR_2M_CONFIG = """
+GCRL/WindyGrid-v0:
+  n_timesteps: 400
+  policy: TabularTwoMemoryPolicy
+  p_ec_schedule: {type: decayed, start: 0.9, end: 0.01, decay: 200}
+"""
+
+
+def test_two_memory_runs_record_the_evaluation_memory_and_get_a_memory_figure(tmp_path):
+    """2M agents: `eval_memory_is_ec` per evaluation (Eq. 5.6) and a Fig. 5.6-style panel in the report."""
+    config = tmp_path / "two_memory.yml"
+    config.write_text(TABULAR_2M_CONFIG)
+    method = parse_method(f"2m=tabular_2m:{config}")
+    specs = plan_runs([method], ["GCRL/WindyGrid-v0"], [0, 1], None, 100, 1, {}, (), tmp_path)
+    output = tmp_path / "out"
+    for spec in specs:
+        result = execute_run(spec, tmp_path / "zoo", io.StringIO())
+        assert result.status == "finished", result.error
+        write_run_result(output / "runs" / spec.relative_dir, result)
+    evaluations = pd.read_csv(output / "runs" / specs[0].relative_dir / "evaluations.csv")
+    assert evaluations["timesteps"].tolist() == [0, 100, 200, 300, 400]
+    assert evaluations["eval_memory_is_ec"].isin([0.0, 1.0]).all()
+
+    summary = summarize(output, specs, metric="mean_return")
+    assert summary.metrics == {"GCRL/WindyGrid-v0": "mean_return"}
+    write_outputs(output, summary, "2M", "", 1.0)
+    assert (output / "memory_GCRL-WindyGrid-v0_2m.png").stat().st_size > 0
+    assert "memory_GCRL-WindyGrid-v0_2m.png" in (output / "report.md").read_text()
+    with pytest.raises(ValueError, match="metric must be"):
+        summarize(output, specs, metric="returns")

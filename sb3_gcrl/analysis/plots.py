@@ -183,6 +183,7 @@ def plot_memory_choice(
     timesteps: np.ndarray,
     uses_ec: np.ndarray,
     curve: np.ndarray | None = None,
+    curve_label: str = "evaluation return",
     title: str | None = None,
     path: str | Path | None = None,
 ) -> Figure:
@@ -192,6 +193,7 @@ def plot_memory_choice(
     :param uses_ec: shape ``(n_runs, n_points)`` (or ``(n_points,)``), True where the evaluation used 2M-EC
         (Eq. 5.6 picks the memory with the higher mean return over its last 50 training episodes).
     :param curve: evaluation returns, shape ``(n_runs, n_points)``, drawn below as mean and min-max band.
+    :param curve_label: y label of the curve panel.
     :param title: figure title.
     :param path: where to save.
     :return: the figure; the top panel stacks the share of runs using EC (orange) and RL (grey).
@@ -204,11 +206,10 @@ def plot_memory_choice(
     n_rows = 1 if curve is None else 2
     figure = Figure(figsize=(5.0, 1.6 + 2.4 * (n_rows - 1)), layout="constrained")
     axes = figure.subplots(n_rows, 1, sharex=True, squeeze=False, height_ratios=[1, 3][:n_rows])[:, 0]
-    widths = np.diff(timesteps, append=timesteps[-1] + (timesteps[-1] - timesteps[-2] if len(timesteps) > 1 else 1))
-    axes[0].bar(timesteps, share_ec, width=widths, align="edge", color=MEMORY_COLORS["ec"], label="2M-EC")
-    axes[0].bar(
-        timesteps, 1 - share_ec, width=widths, bottom=share_ec, align="edge", color=MEMORY_COLORS["rl"], label="2M-RL"
-    )
+    # one bar per evaluation, centred on its step and as wide as the spacing of the schedule
+    width = float(np.min(np.diff(timesteps))) if len(timesteps) > 1 else 1.0
+    axes[0].bar(timesteps, share_ec, width=width, color=MEMORY_COLORS["ec"], label="2M-EC")
+    axes[0].bar(timesteps, 1 - share_ec, width=width, bottom=share_ec, color=MEMORY_COLORS["rl"], label="2M-RL")
     axes[0].set_ylim(0, 1)
     axes[0].set_ylabel("share of runs")
     axes[0].legend(loc="upper right", fontsize="x-small", ncols=2)
@@ -216,7 +217,7 @@ def plot_memory_choice(
         curve = np.atleast_2d(np.asarray(curve, dtype=np.float64))
         axes[1].plot(timesteps, curve.mean(axis=0), color="C0")
         axes[1].fill_between(timesteps, curve.min(axis=0), curve.max(axis=0), color="C0", alpha=0.2, lw=0)
-        axes[1].set_ylabel("evaluation return")
+        axes[1].set_ylabel(curve_label)
     axes[-1].set_xlabel("env steps")
     if title:
         figure.suptitle(title)

@@ -62,6 +62,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--save-models", action="store_true", help="save each trained model in its run folder")
     parser.add_argument("--final-window", type=int, default=1, help="evaluations averaged into the final score")
     parser.add_argument("--solve-threshold", type=float, help="level counted as solved (default 0.9 success)")
+    parser.add_argument(
+        "--metric", choices=["auto", "success_rate", "mean_return"],
+        help="metric of the table and plots (default auto: success rate where every evaluation reports it)",
+    )  # fmt: skip
     parser.add_argument("--title", help="report title")
     return parser
 
@@ -146,6 +150,7 @@ def main(argv: list[str] | None = None) -> int:
             save_models=args.save_models,
             final_window=args.final_window,
             solve_threshold=args.solve_threshold,
+            metric=args.metric or (preset.metric if preset else "auto"),
             title=args.title or (preset.description if preset else None),
             command=command,
         )

@@ -21,6 +21,7 @@ EVALUATION_COLUMNS: tuple[str, ...] = (
     "mean_length",
     "success_rate",
     "wall_time_s",
+    "eval_memory_is_ec",
 )
 
 
@@ -33,7 +34,9 @@ class EvaluationRecorder(BaseCallback):
     ``num_timesteps`` is the step count at which the evaluation actually ran (larger by < ``n_envs``).
 
     Success is the mean of ``info["is_success"]`` at the end of each episode when the env reports it
-    (gymnasium-robotics convention), else NaN; returns are the Monitor episode returns.
+    (gymnasium-robotics convention), else NaN; returns are the Monitor episode returns. For two-memory (2M)
+    agents, ``eval_memory_is_ec`` records which memory the evaluation used (1 = episodic control; Eq. 5.6),
+    the data of Fig. 5.6's top row; NaN for other agents.
 
     :param eval_env: evaluation env, built like the training env (same wrappers) but separate.
     :param eval_freq: env steps between evaluations.
@@ -124,6 +127,12 @@ class EvaluationRecorder(BaseCallback):
             callback=self._log_success,
         )
         success = float(np.mean(self._success_buffer)) if self._success_buffer else math.nan
+        evaluation_memory = getattr(self.model.policy, "evaluation_memory", None)
+        memory_is_ec = math.nan
+        if callable(evaluation_memory):  # 2M agents (sb3_gcrl.two_memory, sb3_gcrl.tabular)
+            from sb3_gcrl.two_memory.schedules import EPISODIC
+
+            memory_is_ec = float(evaluation_memory() == EPISODIC)
         record = {
             "timesteps": int(scheduled),
             "num_timesteps": int(self.num_timesteps),
@@ -132,6 +141,7 @@ class EvaluationRecorder(BaseCallback):
             "mean_length": float(np.mean(lengths)),
             "success_rate": success,
             "wall_time_s": time.perf_counter() - self._start_time,
+            "eval_memory_is_ec": memory_is_ec,
         }
         self.records.append(record)
         self.logger.record("compare/mean_return", record["mean_return"])

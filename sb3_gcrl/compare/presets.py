@@ -18,6 +18,7 @@ class Preset:
     :param eval_freq: env steps between evaluations.
     :param n_eval_episodes: deterministic episodes per evaluation.
     :param hyperparams: overrides applied to every method.
+    :param metric: metric of the table and plots (``auto``, ``success_rate``, ``mean_return``).
     :param thesis: the thesis figure/table the preset mirrors, and how its budget compares.
     """
 
@@ -29,6 +30,7 @@ class Preset:
     eval_freq: int
     n_eval_episodes: int = 5
     hyperparams: dict[str, Any] = field(default_factory=dict)
+    metric: str = "auto"
     thesis: str = ""
 
 

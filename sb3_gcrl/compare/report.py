@@ -8,9 +8,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
+from huggingface_sb3 import EnvironmentName
 
-from sb3_gcrl.analysis.curves import aggregate_curves, choose_metric, load_curves
-from sb3_gcrl.analysis.plots import METRIC_LABELS, plot_learning_curves
+from sb3_gcrl.analysis.curves import METRICS, aggregate_curves, choose_metric, load_curves
+from sb3_gcrl.analysis.plots import METRIC_LABELS, plot_learning_curves, plot_memory_choice
 from sb3_gcrl.analysis.statistics import aggregate_scores, probability_of_improvement, run_scores
 from sb3_gcrl.compare.run import RunSpec
 from sb3_gcrl.compare.storage import EVALUATIONS_FILE, LOG_FILE, atomic_write_text, read_run_record
@@ -85,6 +86,7 @@ def summarize(
     final_window: int = 1,
     solve_threshold: float | None = None,
     min_runs_for_iqm: int = 3,
+    metric: str = "auto",
 ) -> Summary:
     """Load the planned runs from ``output`` and compute curves, per-run scores and aggregates.
 
@@ -94,8 +96,13 @@ def summarize(
     :param solve_threshold: level counted as solved (default: :data:`SUCCESS_THRESHOLD` for success rates,
         none for returns).
     :param min_runs_for_iqm: below this many runs per method, mean and range replace IQM and CI.
+    :param metric: ``success_rate``, ``mean_return``, or ``auto`` (success when every evaluation of the env
+        reports it, else return).
     :return: the summary.
     """
+    if metric not in ("auto", *METRICS):
+        raise ValueError(f"metric must be 'auto' or one of {METRICS}, got {metric!r}")
+    metric_choice = metric
     finished, failed = [], []
     for spec in specs:
         run_dir = output / "runs" / spec.relative_dir
@@ -109,7 +116,9 @@ def summarize(
     planned = pd.Series([(s.env_id, s.method) for s in specs]).value_counts().to_dict()
     scores, summaries, metrics = [], [], {}
     for env_id, env_curves in curves.groupby("env", sort=False):
-        metric = metrics[env_id] = choose_metric(env_curves)
+        metric = metrics[env_id] = choose_metric(env_curves) if metric_choice == "auto" else metric_choice
+        if env_curves[metric].isna().any():
+            raise ValueError(f"{env_id} does not report {metric} in every evaluation: use --metric mean_return or auto")
         threshold = (
             solve_threshold
             if solve_threshold is not None
@@ -159,7 +168,7 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
             ]
         )
         plot_learning_curves(aggregated, summary.metrics, path=output / "curves.png", title=title)
-        figure_md = "![learning curves](curves.png)\n"
+        figure_md = "![learning curves](curves.png)\n" + _memory_choice_figures(output, summary)
     lines = [
         f"# {title}",
         "",
@@ -186,6 +195,29 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
         lines.append("")
     lines.append(f"Wall time of this invocation: {wall_time_s:.0f} s.")
     atomic_write_text(output / "report.md", "\n".join(lines) + "\n")
+
+
+def _memory_choice_figures(output: Path, summary: Summary) -> str:
+    """Fig. 5.6 (top row) for every 2M method: which memory each evaluation used, above the curve."""
+    curves = summary.curves
+    if "eval_memory_is_ec" not in curves or curves["eval_memory_is_ec"].isna().all():
+        return ""
+    lines = ["", "### Memory used by 2M at evaluation (Fig. 5.6, top row: orange EC, grey RL)", ""]
+    for (env_id, method), group in curves.dropna(subset=["eval_memory_is_ec"]).groupby(["env", "method"], sort=False):
+        metric = summary.metrics[env_id]
+        choice = group.pivot_table(index="seed", columns="timesteps", values="eval_memory_is_ec").dropna(axis=1)
+        curve = group.pivot_table(index="seed", columns="timesteps", values=metric)[choice.columns]
+        name = f"memory_{EnvironmentName(env_id)}_{method}.png"
+        plot_memory_choice(
+            choice.columns.to_numpy(),
+            choice.to_numpy() > 0.5,
+            curve.to_numpy(),
+            curve_label=METRIC_LABELS.get(metric, metric),
+            title=f"{method} on {env_id}",
+            path=output / name,
+        )
+        lines.append(f"![{method} memory choice on {env_id}]({name})")
+    return "\n".join(lines) + "\n"
 
 
 def _improvement_section(summary: Summary) -> list[str]:

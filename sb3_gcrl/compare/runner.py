@@ -193,6 +193,7 @@ def compare(
     save_models: bool = False,
     final_window: int = 1,
     solve_threshold: float | None = None,
+    metric: str = "auto",
     title: str | None = None,
     command: str | None = None,
 ) -> ComparisonResult:
@@ -219,6 +220,7 @@ def compare(
     :param save_models: save each trained model in its run folder.
     :param final_window: evaluations averaged into the final score.
     :param solve_threshold: level counted as solved (default 0.9 for success rates).
+    :param metric: ``success_rate``, ``mean_return`` or ``auto`` (success where every evaluation reports it).
     :param title: report title.
     :param command: command line to quote in the report.
     :return: the result, with the summary tables.
@@ -233,6 +235,8 @@ def compare(
             raise ValueError(f"{name} must be >= 1, got {value}")
     if n_eval_episodes < 1:
         raise ValueError(f"n_eval_episodes must be >= 1, got {n_eval_episodes}")
+    if metric not in ("auto", "success_rate", "mean_return"):
+        raise ValueError(f"metric must be 'auto', 'success_rate' or 'mean_return', got {metric!r}")
     config_dir = Path(config_dir)
     prepare_process(tuple(gym_packages))  # registers envs and algorithms here too, for the checks below
     parsed = [m if isinstance(m, Method) else parse_method(m, config_dir) for m in methods]
@@ -271,7 +275,7 @@ def compare(
         finally:
             display.close()
 
-    summary = summarize(output, specs, final_window=final_window, solve_threshold=solve_threshold)
+    summary = summarize(output, specs, final_window=final_window, solve_threshold=solve_threshold, metric=metric)
     title = title or f"{' vs '.join(labels)} on {', '.join(envs)}"
     wall_time = time.perf_counter() - start
     write_outputs(output, summary, title, _settings_markdown(specs, backend, command), wall_time)
