@@ -11,6 +11,12 @@ Lava tasks use a different layout per seed (the thesis's "environment seeds"); F
 Example (a few minutes on one core)::
 
     nice -n 10 python scripts/reproduce_ch6.py --tasks FourRooms LavaGap LavaCrossing --seeds 5 --steps 100000
+
+Deep IMGEP (Fig. 6.5 / 6.6; DDPG + HER 'future' k = 4, Table 6.3 settings via
+:class:`~sb3_gcrl.post_exploration.PostExplorationWrapper`): ``--tasks FetchReach PointUMaze --algo ddpg``; the
+all-goals success is measured on a fixed grid of goals (FetchReach: 3x3x3 around the initial gripper position
+within the target range; PointUMaze: 4 points in each free cell of the U) and the entropy curve (Eq. 6.7) over
+the goal-space bins is recorded at each evaluation.
 """
 
 from __future__ import annotations
@@ -25,8 +31,16 @@ import numpy as np
 import torch as th
 
 import sb3_gcrl  # noqa: F401  (registers GCRL/ envs)
+from sb3_gcrl.her import ExecutedActionHerReplayBuffer
 from sb3_gcrl.imgep import TabularGoalEnv, TabularIMGEP
-from sb3_gcrl.post_exploration import AllGoalsEvalCallback, NoveltyAdaptive, ProportionalSteps
+from sb3_gcrl.post_exploration import (
+    AllGoalsEvalCallback,
+    NoveltyAdaptive,
+    PostExplorationCallback,
+    PostExplorationWrapper,
+    ProportionalSteps,
+    visitation_entropy,
+)
 
 TASKS = {
     "FourRooms": "GCRL/FourRoomsTabular-v0",
@@ -34,6 +48,106 @@ TASKS = {
     "LavaGap": "GCRL/LavaGapTabular-v0",
 }
 VARIANTS = ("off", "on", "adaptive")
+#: Table 6.3 (n_pe, n_bins, tau, noise) and the goal-space box used for bins
+DEEP_TASKS = {
+    "FetchReach": {
+        "env_id": "FetchReach-v4",
+        "n_pe": 30,
+        "n_bins": 20,
+        "tau": 0.0,
+        "noise": 0.01,
+        "low": [1.0, 0.4, 0.35],
+        "high": [1.7, 1.1, 0.95],
+    },
+    "PointUMaze": {
+        "env_id": "GCRL/PointUMazeGoal-v0",
+        "n_pe": 50,
+        "n_bins": 100,
+        "tau": 0.01,
+        "noise": 0.1,
+        "low": [-1.5, -1.5],
+        "high": [1.5, 1.5],
+    },
+}
+
+
+def deep_goal_grid(task: str, env: gym.Env) -> np.ndarray:
+    """Fixed evaluation goals over the reachable goal space (see the module docstring)."""
+    if task == "FetchReach":
+        centre, r = env.unwrapped.initial_gripper_xpos, env.unwrapped.target_range
+        axes = [np.linspace(c - r, c + r, 3) for c in centre]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    maze = env.unwrapped.maze
+    offsets = np.array([[-0.25, -0.25], [-0.25, 0.25], [0.25, -0.25], [0.25, 0.25]])
+    cells = [
+        maze.cell_rowcol_to_xy(np.array([i, j]))
+        for i, row in enumerate(maze.maze_map)
+        for j, free in enumerate(row)
+        if free == 0
+    ]
+    return np.concatenate([c + offsets for c in cells])
+
+
+class EntropyRecorder(AllGoalsEvalCallback):
+    """All-goals evaluation that also records the visitation entropy (Eq. 6.7) of the training env's goal space."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.entropies: list[float] = []
+
+    def _evaluate(self) -> None:
+        before = len(self.timesteps)
+        super()._evaluate()
+        if len(self.timesteps) > before:
+            space = self.training_env.get_attr("goal_space")[0]
+            self.entropies.append(visitation_entropy(space.counts))
+
+
+def run_deep(task: str, variant: str, seed: int, algo: str, steps: int, eval_freq: int) -> dict:
+    """Train one deep IMGEP agent (DDPG or SAC + HER) with post-exploration off / on / adaptive."""
+    from stable_baselines3 import DDPG, SAC
+    from stable_baselines3.common.noise import NormalActionNoise
+
+    spec = DEEP_TASKS[task]
+    goal_kwargs = {"tau": spec["tau"], "goal_low": spec["low"], "goal_high": spec["high"], "n_bins": spec["n_bins"]}
+    rule = {"adaptive": {"n_pe": spec["n_pe"]}} if variant == "adaptive" else {"n_pe": spec["n_pe"]}
+    env = PostExplorationWrapper(
+        gym.make(spec["env_id"]), post_exploration=variant != "off", scheduler_kwargs=goal_kwargs, **rule
+    )
+    eval_env = PostExplorationWrapper(gym.make(spec["env_id"]), n_pe=1, scheduler="env_default")  # episodic
+    horizon = env.spec.max_episode_steps if env.spec is not None else 300
+    kwargs = {
+        "learning_rate": 1e-3,
+        "gamma": 0.98,
+        "batch_size": 256,
+        "learning_starts": 4 * 300,
+        "policy_kwargs": {"net_arch": [256, 256, 256]},
+        "replay_buffer_class": ExecutedActionHerReplayBuffer,
+        "replay_buffer_kwargs": {"n_sampled_goal": 4, "goal_selection_strategy": "future"},
+        "seed": seed,
+    }
+    if algo == "ddpg":
+        n_actions = env.action_space.shape[0]
+        kwargs["action_noise"] = NormalActionNoise(np.zeros(n_actions), spec["noise"] * np.ones(n_actions))
+    model = (DDPG if algo == "ddpg" else SAC)("MultiInputPolicy", env, **kwargs)
+    recorder = EntropyRecorder(eval_env, eval_freq=eval_freq, goals=deep_goal_grid(task, eval_env), max_steps=horizon)
+    start = time.perf_counter()
+    model.learn(steps, callback=[PostExplorationCallback(log_freq=eval_freq), recorder])
+    return {
+        "task": task,
+        "variant": variant,
+        "seed": seed,
+        "epsilon": 0.1,
+        "algo": algo,
+        "timesteps": recorder.timesteps,
+        "success": recorder.success_rates,
+        "entropy_curve": recorder.entropies,
+        "entropy": recorder.entropies[-1],
+        "coverage": float(np.count_nonzero(env.goal_space.counts) / env.goal_space.n_cells),
+        "post_exploration_steps": env.post_exploration_steps,
+        "episodes": env.episodes,
+        "wall_s": time.perf_counter() - start,
+    }
 
 
 def run_one(task: str, variant: str, seed: int, epsilon: float, steps: int, eval_freq: int) -> dict:
@@ -123,7 +237,25 @@ def plot(runs: list[dict], out: Path) -> None:
         ax.legend()
     fig.tight_layout()
     fig.savefig(out / "curves.png", dpi=120)
+    deep = [task for task in tasks if task in DEEP_TASKS]
+    if deep:
+        fig, axes = plt.subplots(1, len(deep), figsize=(5 * len(deep), 3.6), squeeze=False)
+        for ax, task in zip(axes[0], deep):
+            for variant in VARIANTS:
+                sel = [r for r in runs if r["task"] == task and r["variant"] == variant]
+                if not sel:
+                    continue
+                n = min(len(r["entropy_curve"]) for r in sel)
+                y = np.array([r["entropy_curve"][:n] for r in sel])
+                ax.plot(sel[0]["timesteps"][:n], y.mean(0), color=colors[variant], label=variant)
+            ax.set_title(f"{task}: visitation entropy (Eq. 6.7)")
+            ax.set_xlabel("environment steps")
+            ax.legend()
+        fig.tight_layout()
+        fig.savefig(out / "entropy.png", dpi=120)
     for task in tasks:
+        if "counts" not in runs[0]:
+            continue
         sel = [r for r in runs if r["task"] == task and r["seed"] == 0 and r["epsilon"] == 0.1]
         if not sel:
             continue
@@ -139,7 +271,8 @@ def plot(runs: list[dict], out: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=list(TASKS))
+    parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=[*TASKS, *DEEP_TASKS])
+    parser.add_argument("--algo", default="ddpg", choices=["ddpg", "sac"], help="deep tasks only")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     parser.add_argument("--seeds", type=int, default=5, help="seeds (lava tasks: also the layout seeds)")
     parser.add_argument("--epsilons", type=float, nargs="+", default=[0.0, 0.1, 0.3], help="Table 6.2")
@@ -153,8 +286,11 @@ def main() -> None:
     for task in args.tasks:
         for variant in args.variants:
             for seed in range(args.seeds):
-                for epsilon in args.epsilons:
-                    runs.append(run_one(task, variant, seed, epsilon, args.steps, args.eval_freq))
+                for epsilon in args.epsilons if task in TASKS else [0.1]:
+                    if task in TASKS:
+                        runs.append(run_one(task, variant, seed, epsilon, args.steps, args.eval_freq))
+                    else:
+                        runs.append(run_deep(task, variant, seed, args.algo, args.steps, args.eval_freq))
                     r = runs[-1]
                     print(
                         f"{task:12s} {variant:8s} seed={seed} eps={epsilon:.1f} success={r['success'][-1]:.3f} "

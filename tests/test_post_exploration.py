@@ -77,6 +77,7 @@ from pathlib import Path  # noqa: E402
 
 import gymnasium as gym  # noqa: E402
 from stable_baselines3 import SAC, HerReplayBuffer  # noqa: E402
+from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 
 import sb3_gcrl  # noqa: E402,F401
 from sb3_gcrl.her import ExecutedActionHerReplayBuffer  # noqa: E402
@@ -159,7 +160,17 @@ def test_wrapper_bad_input_names_the_fix() -> None:
         PostExplorationWrapper(gym.make("GCRL/GrowingTreeGoal-v0"), adaptive=True, scheduler="env_default")
 
 
-def test_her_buffer_stores_executed_actions_including_post_exploration_and_callback_logs() -> None:
+class RecordPostExplorationFlags(BaseCallback):
+    def __init__(self) -> None:
+        super().__init__()
+        self.flags: list[bool] = []
+
+    def _on_step(self) -> bool:
+        self.flags.append(bool(self.locals["infos"][0].get("post_exploration", False)))
+        return True
+
+
+def test_her_buffer_stores_executed_actions_and_relabels_with_post_exploration_states() -> None:
     env = make_tree(n_pe=5)
     model = SAC(
         "MultiInputPolicy",
@@ -171,18 +182,27 @@ def test_her_buffer_stores_executed_actions_including_post_exploration_and_callb
         replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
         seed=0,
     )
-    model.learn(400, callback=PostExplorationCallback(log_freq=100))
+    flags = RecordPostExplorationFlags()
+    model.learn(400, callback=[PostExplorationCallback(log_freq=100), flags])
     wrapper = model.get_env().envs[0].env  # Monitor -> PostExplorationWrapper
     assert wrapper.post_exploration_steps > 0 and wrapper.goals_reached > 0
     buffer = model.replay_buffer
     n = buffer.pos
+    assert n == 400 and len(flags.flags) == 400
+    # stored actions are the executed ones (Box(-0.1, 0.1) is stored scaled to [-1, 1])
     executed = np.array(wrapper.env.executed[-n:])  # the recorder sits below the wrapper
-    scaled = executed / 0.1  # Box(-0.1, 0.1) -> [-1, 1], as SB3 stores actions
-    np.testing.assert_allclose(buffer.actions[:n, 0], scaled, atol=1e-5)
-    # post-exploration steps belong to their HER episode: stored episode lengths cover them
-    lengths = buffer.ep_length[:n, 0]
-    assert lengths.max() > 1 and lengths.sum() > 0
-    assert model.logger.name_to_value.get("post_exploration/steps", 0) >= 0
+    np.testing.assert_allclose(buffer.actions[:n, 0], executed / 0.1, atol=1e-5)
+    # post-exploration steps are inside their HER episode, and 'future' relabels earlier steps with their states
+    post = np.flatnonzero(flags.flags)
+    i = int(post[-1])
+    start, length = int(buffer.ep_start[i, 0]), int(buffer.ep_length[i, 0])
+    assert start <= i < start + length and flags.flags[start + length - 1]  # the episode ends post-exploring
+    first_post = start + int(np.argmax(flags.flags[start : start + length]))
+    post_goals = buffer.next_observations["achieved_goal"][first_post : start + length, 0]
+    goals = buffer._sample_goals(np.full(2000, start), np.zeros(2000, dtype=int))
+    share = np.isin(goals, post_goals).mean()  # 'future' draws uniformly over the rest of the episode
+    assert share > 0 and share == pytest.approx(len(post_goals) / length, abs=0.03)
+    assert model.logger.name_to_value["post_exploration/steps"] == wrapper.post_exploration_steps
     stock = SAC(
         "MultiInputPolicy",
         make_tree(),
