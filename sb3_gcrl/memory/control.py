@@ -176,6 +176,9 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
         device: th.device | str = "cpu",
         _init_setup_model: bool = True,
     ) -> None:
+        if hasattr(env, "action_space") and hasattr(env, "observation_space"):
+            # before SB3's own (assertion) checks, so that the error names the fix
+            self._check_spaces(env.observation_space, env.action_space)
         super().__init__(
             policy,
             env,

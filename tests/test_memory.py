@@ -1,0 +1,270 @@
+"""Episodic memory backend: exact kNN, LRU order, embeddings, CEC (Eq. 4.3-4.5) and MFEC (Eq. 5.2) rules."""
+
+import numpy as np
+import pytest
+from gymnasium import spaces
+from scipy import stats
+
+from sb3_gcrl.memory import (
+    CECMemory,
+    EpisodeBuffers,
+    KeyEmbedding,
+    KNNIndex,
+    MFECMemory,
+    MFECTable,
+    RecencyOrder,
+    discounted_returns,
+)
+
+
+def brute_force(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
+    dist = np.sqrt(((queries[:, None, :].astype(np.float64) - reference[None]) ** 2).sum(-1))
+    return np.sort(dist, axis=1)[:, :k]
+
+
+# ---------------------------------------------------------------- KNNIndex
+@pytest.mark.parametrize("backend", ["kdtree", "flat"])
+@pytest.mark.parametrize("dim", [1, 3, 8])
+def test_knn_exact_under_adds_and_overwrites(backend, dim):
+    rng = np.random.default_rng(dim)
+    capacity = 400
+    index = KNNIndex(dim, capacity, backend=backend, rebuild_threshold=25)
+    reference = np.zeros((capacity, dim), dtype=np.float32)
+    for step in range(1200):
+        key = rng.standard_normal(dim).astype(np.float32)
+        if index.size < capacity and rng.random() < 0.6:
+            reference[index.add(key)] = key
+        elif index.size:
+            row = int(rng.integers(index.size))
+            index.set_key(row, key)
+            reference[row] = key
+        if step % 5 == 0:
+            queries = rng.standard_normal((4, dim)).astype(np.float32)
+            dist, rows = index.search(queries, 5)
+            n = index.size
+            expected = brute_force(reference[:n], queries, 5)
+            kk = min(5, n)
+            np.testing.assert_allclose(dist[:, :kk], expected[:, :kk], rtol=1e-5, atol=1e-5)
+            # the returned rows really are at the returned distances
+            recomputed = np.linalg.norm(reference[rows[:, :kk]] - queries[:, None, :], axis=-1)
+            np.testing.assert_allclose(recomputed, dist[:, :kk], rtol=1e-5, atol=1e-5)
+    if backend == "kdtree":
+        assert index.n_rebuilds > 1  # lazily rebuilt, not per write
+
+
+def test_knn_pads_when_fewer_rows_than_k_and_validates_input():
+    index = KNNIndex(2, 10)
+    dist, rows = index.search(np.zeros((1, 2), np.float32), 3)
+    assert np.all(np.isinf(dist)) and np.all(rows == -1)
+    index.add(np.array([1.0, 0.0], np.float32))
+    dist, rows = index.search(np.zeros((2, 2), np.float32), 3)
+    np.testing.assert_allclose(dist[:, 0], 1.0)
+    assert (rows[:, 0] == 0).all() and (rows[:, 1:] == -1).all() and np.isinf(dist[:, 1:]).all()
+    with pytest.raises(ValueError, match=r"shape \(n, 2\)"):
+        index.search(np.zeros((1, 3), np.float32), 1)
+    with pytest.raises(ValueError, match="backend"):
+        KNNIndex(2, 10, backend="annoy")  # type: ignore[arg-type]
+    full = KNNIndex(1, 1)
+    full.add(np.zeros(1, np.float32))
+    with pytest.raises(RuntimeError, match="set_key"):
+        full.add(np.zeros(1, np.float32))
+
+
+# ---------------------------------------------------------------- RecencyOrder
+def test_recency_order_touch_evict_and_restore():
+    order = RecencyOrder(4)
+    for row in (0, 1, 2, 3):
+        order.touch(row)
+    assert order.oldest() == 0
+    order.touch(0)  # 0 becomes the most recent
+    assert order.oldest() == 1
+    order.touch(2)
+    order.touch(1)
+    assert order.oldest() == 3
+    restored = RecencyOrder(4)
+    restored.rebuild_from_timestamps(order.last_update[:4].copy(), order.clock)
+    for expected in (3, 0, 2, 1):
+        assert restored.oldest() == expected == order.oldest()
+        restored.touch(expected)
+        order.touch(expected)
+
+
+# ---------------------------------------------------------------- CEC update rule (Eq. 4.3 / 4.4)
+def make_cec(capacity=3, **kwargs):
+    params = dict(distance_threshold=0.5, filter_factor=1.0, n_neighbors=3, temperature=1.0)
+    params.update(kwargs)
+    return CECMemory(key_dim=1, action_dim=1, capacity=capacity, **params)
+
+
+def test_cec_update_add_replace_refresh_evict():
+    memory = make_cec()
+    # one episode of three far-apart states, processed from the end (Algorithm 1)
+    counts = memory.update_episode(np.array([[0.0], [1.0], [2.0]]), np.array([[0.1], [0.2], [0.3]]), [3.0, 2.0, 1.0])
+    assert counts == {"added": 3, "evicted": 0, "replaced": 0, "refreshed": 0}
+    np.testing.assert_allclose(memory.keys[:, 0], [2.0, 1.0, 0.0])  # rows 0,1,2 hold s=2,1,0
+    # within d of s=0 (row 2) and higher value -> replace the row by (s, a, v)
+    assert memory.update(np.array([0.2], np.float32), np.array([0.9], np.float32), 5.0) == "replaced"
+    assert memory.keys[2, 0] == pytest.approx(0.2) and memory.actions[2, 0] == pytest.approx(0.9)
+    assert memory.values[2] == 5.0
+    # within d of s=1 (row 1) but lower value -> row kept, only its update time refreshed
+    assert memory.update(np.array([1.1], np.float32), np.array([-0.5], np.float32), 0.0) == "refreshed"
+    assert memory.keys[1, 0] == 1.0 and memory.actions[1, 0] == pytest.approx(0.2) and memory.values[1] == 2.0
+    # update times: row 0 (s=2) is now the least recently updated -> a far state evicts it (Eq. 4.4)
+    assert memory.update(np.array([10.0], np.float32), np.array([0.7], np.float32), 0.5) == "evicted"
+    assert len(memory) == 3
+    np.testing.assert_allclose(np.sort(memory.keys[:, 0]), [0.2, 1.0, 10.0])
+    assert memory.values[0] == 0.5 and memory.actions[0, 0] == pytest.approx(0.7)
+    # the next eviction takes the oldest remaining row: row 2 (replaced before row 1 was refreshed)
+    memory.update(np.array([-10.0], np.float32), np.zeros(1, np.float32), 0.0)
+    np.testing.assert_allclose(np.sort(memory.keys[:, 0]), [-10.0, 1.0, 10.0])
+
+
+def test_cec_update_sees_rows_written_earlier_in_the_same_episode():
+    memory = make_cec(capacity=10)
+    # s=0.1 (processed first, value 1) then s=0.0 (value 2) lies within d of it -> replace, not add
+    counts = memory.update_episode(np.array([[0.0], [0.1]]), np.array([[0.5], [0.6]]), [2.0, 1.0])
+    assert counts["added"] == 1 and counts["replaced"] == 1 and len(memory) == 1
+    assert memory.keys[0, 0] == 0.0 and memory.values[0] == 2.0
+
+
+def test_cec_selection_distribution_matches_eq_4_5():
+    memory = make_cec(capacity=10, n_neighbors=4, temperature=0.5, distance_threshold=0.05, filter_factor=20.0)
+    # three rows within n*d = 1 of the query, one outside it
+    keys = np.array([[0.1], [0.3], [-0.4], [1.5]])
+    actions = np.array([[-1.0], [0.0], [1.0], [0.5]])
+    values = np.array([0.0, 1.0, 0.5, 100.0])
+    for key, action, value in zip(keys, actions, values):
+        memory.update(key.astype(np.float32), action.astype(np.float32), value)
+    query = np.zeros((20_000, 1), np.float32)
+    chosen, found = memory.select_actions(query, np.random.default_rng(0))
+    assert found.all()
+    counts = np.array([(chosen[:, 0] == a).sum() for a in (-1.0, 0.0, 1.0, 0.5)])
+    assert counts[3] == 0  # the row outside n*d never votes, whatever its value
+    expected = np.exp(values[:3] / 0.5) / np.exp(values[:3] / 0.5).sum()
+    assert stats.chisquare(counts[:3], expected * len(query)).pvalue > 1e-3
+
+
+def test_cec_softmax_is_numerically_safe_and_no_neighbour_is_reported():
+    memory = make_cec(capacity=10, temperature=1e-3)
+    memory.update(np.zeros(1, np.float32), np.ones(1, np.float32), 1e6)
+    memory.update(np.ones(1, np.float32), -np.ones(1, np.float32), 1e6 - 1)
+    rows, probs = memory.selection_probabilities(np.array([[0.0], [0.45], [3.0]], np.float32))
+    assert np.isfinite(probs).all()
+    np.testing.assert_allclose(probs[0].sum(), 1.0)
+    assert probs[2].sum() == 0  # nothing within n * d
+    actions, found = memory.select_actions(np.array([[0.0], [3.0]], np.float32), np.random.default_rng(0))
+    assert found.tolist() == [True, False] and actions[0, 0] == 1.0
+
+
+def test_cec_greedy_takes_nearest_row_without_threshold():
+    memory = make_cec(capacity=10)
+    memory.update(np.array([0.0], np.float32), np.array([0.3], np.float32), 0.0)
+    memory.update(np.array([2.0], np.float32), np.array([-0.3], np.float32), 10.0)
+    actions, found = memory.greedy_actions(np.array([[0.4], [50.0]], np.float32))
+    assert found.all()
+    np.testing.assert_allclose(actions[:, 0], [0.3, -0.3])
+
+
+def test_cec_memory_state_dict_round_trip_and_errors():
+    memory = make_cec(capacity=50, distance_threshold=0.05)
+    rng = np.random.default_rng(0)
+    memory.update_episode(rng.uniform(-1, 1, (40, 1)), rng.uniform(-1, 1, (40, 1)), rng.random(40))
+    state = memory.state_dict()
+    assert len(state["keys"]) == len(memory)  # used rows only
+    restored = make_cec(capacity=50, distance_threshold=0.05)
+    restored.load_state_dict(state)
+    queries = rng.uniform(-1, 1, (30, 1)).astype(np.float32)
+    np.testing.assert_array_equal(memory.greedy_actions(queries)[0], restored.greedy_actions(queries)[0])
+    np.testing.assert_array_equal(
+        memory.select_actions(queries, np.random.default_rng(1))[0],
+        restored.select_actions(queries, np.random.default_rng(1))[0],
+    )
+    assert memory.recency.oldest() == restored.recency.oldest()
+    with pytest.raises(ValueError, match="capacity"):
+        make_cec(capacity=5).load_state_dict(state)
+    for bad, match in (
+        (dict(distance_threshold=0.0), "distance_threshold"),
+        (dict(temperature=-1.0), "temperature"),
+        (dict(n_neighbors=0), "n_neighbors"),
+        (dict(filter_factor=0.0), "filter_factor"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            make_cec(**bad)
+
+
+# ---------------------------------------------------------------- MFEC (Eq. 5.2)
+def test_mfec_max_update_add_knn_estimate_and_untried_actions():
+    memory = MFECMemory(key_dim=1, n_actions=2, capacity_per_action=10, n_neighbors=2)
+    memory.update_episode(np.array([[0.0], [1.0], [2.0]]), np.array([0, 0, 0]), [1.0, 2.0, 3.0])
+    table = memory.tables[0]
+    assert len(table) == 3 and len(memory.tables[1]) == 0
+    # exact match: max update (Eq. 5.2)
+    memory.update_episode(np.array([[1.0]]), np.array([0]), [1.5])
+    assert table.values[table.lookup(np.array([1.0], np.float32))] == 2.0
+    memory.update_episode(np.array([[1.0]]), np.array([0]), [7.0])
+    assert table.values[table.lookup(np.array([1.0], np.float32))] == 7.0
+    q = memory.estimate(np.array([[1.0], [0.4], [10.0]], np.float32))
+    np.testing.assert_allclose(q[:, 0], [7.0, (1.0 + 7.0) / 2, (3.0 + 7.0) / 2])  # exact, then mean of k=2 nearest
+    assert np.isinf(q[:, 1]).all()  # untried action: +inf, so it is preferred
+    np.testing.assert_array_equal(memory.greedy_actions(np.array([[1.0]], np.float32)), [1])
+
+
+def test_mfec_eviction_is_least_recently_updated_and_state_round_trips():
+    table = MFECTable(key_dim=1, capacity=2, n_neighbors=1)
+    table.update(np.array([0.0], np.float32), 1.0)
+    table.update(np.array([1.0], np.float32), 1.0)
+    table.update(np.array([0.0], np.float32), 0.5)  # refreshes s=0 (value kept at 1.0)
+    assert table.update(np.array([5.0], np.float32), 3.0)  # evicts s=1
+    assert table.lookup(np.array([1.0], np.float32)) == -1
+    assert table.lookup(np.array([0.0], np.float32)) >= 0
+    memory = MFECMemory(key_dim=1, n_actions=2, capacity_per_action=2, n_neighbors=1)
+    memory.tables[0] = table
+    restored = MFECMemory(key_dim=1, n_actions=2, capacity_per_action=2, n_neighbors=1)
+    restored.load_state_dict(memory.state_dict())
+    q = np.array([[0.0], [4.0], [2.4]], np.float32)
+    np.testing.assert_array_equal(memory.estimate(q), restored.estimate(q))
+    assert restored.tables[0].recency.oldest() == table.recency.oldest()
+    with pytest.raises(ValueError, match=r"actions must lie in \[0, 2\)"):
+        memory.update_episode(np.zeros((1, 1)), np.array([2]), [0.0])
+
+
+# ---------------------------------------------------------------- embedding, episodes
+def test_random_projection_is_fixed_by_the_seed():
+    space = spaces.Box(-1, 1, (20,))
+    obs = np.random.default_rng(0).uniform(-1, 1, (5, 20))
+    a, b, c = (KeyEmbedding(space, projection_dim=4, seed=s) for s in (3, 3, 4))
+    np.testing.assert_array_equal(a(obs), b(obs))
+    assert not np.allclose(a(obs), c(obs))
+    assert a(obs).shape == (5, 4) and a(obs).dtype == np.float32
+    np.testing.assert_allclose(a(obs), obs.astype(np.float32) @ a.projection, rtol=1e-6)
+    d = KeyEmbedding(space, projection_dim=4, seed=99)
+    d.set_state(a.get_state())
+    np.testing.assert_array_equal(a(obs), d(obs))
+
+
+def test_dict_embedding_order_and_errors():
+    box = spaces.Box(-1, 1, (1,))
+    space = spaces.Dict({"observation": spaces.Box(-1, 1, (2,)), "achieved_goal": box, "desired_goal": box})
+    embedding = KeyEmbedding(space)
+    assert embedding.observation_keys == ("observation", "desired_goal") and embedding.key_dim == 3
+    obs = {"observation": np.array([[1.0, 2.0]]), "achieved_goal": np.array([[9.0]]), "desired_goal": np.array([[3.0]])}
+    np.testing.assert_array_equal(embedding(obs), [[1.0, 2.0, 3.0]])
+    custom = KeyEmbedding(space, observation_keys=["desired_goal", "achieved_goal"])
+    np.testing.assert_array_equal(custom(obs), [[3.0, 9.0]])
+    with pytest.raises(ValueError, match="not in the Dict observation space"):
+        KeyEmbedding(space, observation_keys=["goal"])
+    with pytest.raises(ValueError, match="NaN"):
+        embedding({**obs, "observation": np.array([[np.nan, 0.0]])})
+    with pytest.raises(ValueError, match="FlattenObservation"):
+        KeyEmbedding(spaces.Tuple([spaces.Discrete(2)]))
+
+
+def test_discounted_returns_and_episode_buffers():
+    np.testing.assert_allclose(discounted_returns(np.array([0.0, 0.0, 1.0]), 0.5), [0.25, 0.5, 1.0])
+    buffers = EpisodeBuffers(n_envs=2, key_dim=1, action_shape=(1,), initial_length=2)
+    for t in range(5):  # grows past the initial length
+        buffers.add(np.array([[t], [10 + t]]), np.array([[t], [-t]]), np.array([t, 2 * t]))
+    keys, actions, rewards = buffers.pop(1)
+    np.testing.assert_array_equal(keys[:, 0], [10, 11, 12, 13, 14])
+    np.testing.assert_array_equal(rewards, [0, 2, 4, 6, 8])
+    assert buffers.lengths.tolist() == [5, 0]

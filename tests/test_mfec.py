@@ -1,0 +1,116 @@
+"""MFEC as an SB3 algorithm: Eq. 5.2 through learn(), greedy/tie-breaking, save/load, seeding, errors."""
+
+import os
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+from gymnasium import spaces
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.evaluation import evaluate_policy
+
+import sb3_gcrl  # noqa: F401  (registers GCRL/ and MinAtar envs)
+from sb3_gcrl import MFEC
+from sb3_gcrl.algorithms import load_algorithm
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+class ChainEnv(gym.Env):
+    """States 0..4 on a chain; action 1 moves right, 0 moves left; reward 1 at state 4 (terminal)."""
+
+    observation_space = spaces.Discrete(5)
+    action_space = spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.s, self.t = 0, 0
+        return self.s, {}
+
+    def step(self, action):
+        self.s = max(0, self.s + (1 if action == 1 else -1))
+        self.t += 1
+        done = self.s == 4
+        return self.s, float(done), done, self.t >= 20, {"is_success": done}
+
+
+def test_learns_chain_and_memory_holds_max_discounted_returns():
+    model = MFEC("MFECPolicy", ChainEnv(), projection_dim=None, n_neighbors=1, gamma=0.9, seed=0)
+    model.learn(600, log_interval=None)
+    table_right = model.policy.memory.tables[1]
+    # Eq. 5.2: the best return ever seen after moving right from state 3 is 1, from state 0 it is 0.9^3
+    assert table_right.values[table_right.lookup(np.array([3.0], np.float32))] == pytest.approx(1.0)
+    assert table_right.values[table_right.lookup(np.array([0.0], np.float32))] == pytest.approx(0.9**3)
+    actions, _ = model.predict(np.arange(4), deterministic=True)
+    np.testing.assert_array_equal(actions, [1, 1, 1, 1])
+    mean, _ = evaluate_policy(model, ChainEnv(), n_eval_episodes=3, deterministic=True)
+    assert mean == 1.0
+
+
+def test_untried_actions_are_preferred_and_ties_broken_at_random():
+    model = MFEC("MFECPolicy", ChainEnv(), projection_dim=None, seed=0, exploration_initial_eps=0.0)
+    model.policy.exploration_rate = 0.0
+    actions, _ = model.predict(np.zeros(400, dtype=np.int64))  # every action is untried (+inf)
+    assert set(np.unique(actions)) == {0, 1}
+    assert abs(actions.mean() - 0.5) < 0.1
+    det, _ = model.predict(np.zeros(5, dtype=np.int64), deterministic=True)
+    np.testing.assert_array_equal(det, 0)  # deterministic: lowest index among ties
+
+
+def test_minatar_with_projection_several_envs_save_load(tmp_path):
+    vec_env = make_vec_env("MinAtar/Breakout-v1", n_envs=2, seed=0)
+    model = MFEC("MFECPolicy", vec_env, capacity_per_action=2000, seed=0)
+    assert model.policy.embedding.key_dim == 8
+    model.learn(1500, log_interval=None)
+    assert len(model.policy.memory) > 0
+    obs = vec_env.reset()
+    for _ in range(10):
+        obs, *_ = vec_env.step(model.predict(obs)[0])
+    model.save(tmp_path / "mfec.zip")
+    loaded = MFEC.load(tmp_path / "mfec.zip")
+    np.testing.assert_array_equal(loaded.policy.embedding.projection, model.policy.embedding.projection)
+    keys = model.policy.embedding(obs)
+    np.testing.assert_array_equal(model.policy.q_values(keys), loaded.policy.q_values(keys))
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+    for m in (model, loaded):
+        m.policy.set_seed(3)
+    np.testing.assert_array_equal(model.predict(obs)[0], loaded.predict(obs)[0])
+
+
+def test_seeding_is_deterministic():
+    def run(seed):
+        model = MFEC("MFECPolicy", gym.make("GCRL/WindyGrid-v0"), projection_dim=None, seed=seed)
+        model.learn(1500, log_interval=None)
+        return model.policy.memory.state_dict()
+
+    a, b = run(4), run(4)
+    assert a.keys() == b.keys()
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name])
+
+
+def test_errors_name_the_fix():
+    with pytest.raises(ValueError, match="CEC"):
+        MFEC("MFECPolicy", gym.make("Pendulum-v1"))
+    with pytest.raises(ValueError, match="capacity_per_action"):
+        MFEC("MFECPolicy", ChainEnv(), capacity_per_action=0)
+    with pytest.raises(ValueError, match="n_neighbors"):
+        MFEC("MFECPolicy", ChainEnv(), n_neighbors=0)
+    with pytest.raises(ValueError, match="gamma"):
+        MFEC("MFECPolicy", ChainEnv(), gamma=1.5)
+    assert load_algorithm("mfec") is MFEC
+
+
+def test_zoo_config_hyperparameters_build_models():
+    with open(os.path.join(ROOT, "zoo_configs", "mfec.yml")) as f:
+        config = yaml.safe_load(f)
+    assert {"MinAtar/Breakout-v1", "MinAtar/Seaquest-v1", "GCRL/WindyGrid-v0"} <= set(config)
+    for env_id, hyperparams in config.items():
+        kwargs = {k: v for k, v in hyperparams.items() if k not in ("n_timesteps", "n_envs")}
+        env = gym.make(env_id)
+        model = MFEC(env=env, **kwargs)
+        n_actions = env.action_space.n
+        if env_id.startswith("MinAtar"):
+            assert model.capacity_per_action == int(1e5 / (2 * n_actions))  # 2M code's capacity
+        env.close()
