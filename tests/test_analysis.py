@@ -84,6 +84,11 @@ def test_run_scores_hand_computed():
     assert scores.loc["b", "auc"] == pytest.approx(0.25 * 20 / 40)
     assert scores.loc["b", "final"] == pytest.approx(0.25)
     assert math.isnan(scores.loc["b", "solved_at"])
+    # solved = reached and kept: an early success that is lost again does not count
+    table = curves_table({("c", 0): [1.0, 0.0, 1.0, 1.0], ("d", 0): [1.0, 1.0, 1.0, 0.0]}, [0, 10, 20, 40])
+    scores = run_scores(table, "success_rate", solve_threshold=0.9).set_index("method")
+    assert scores.loc["c", "solved_at"] == 20
+    assert math.isnan(scores.loc["d", "solved_at"])
     with pytest.raises(ValueError, match="final_window"):
         run_scores(table, "success_rate", final_window=0)
 

@@ -25,7 +25,9 @@ def run_scores(
     - ``final``: mean of the metric over the run's last ``final_window`` evaluations;
     - ``auc``: normalised area under the curve, trapezoid over env steps divided by the steps spanned
       (the average level during training; equals the value itself for a one-point curve);
-    - ``solved_at``: first evaluated step with metric >= ``solve_threshold`` (NaN if never or no threshold).
+    - ``solved_at``: first evaluated step from which the metric stays >= ``solve_threshold`` until the end
+      (NaN if the last evaluation is below it, or no threshold): a lucky early evaluation that is lost
+      again does not count as solving.
 
     :param curves: tidy curves (``env, method, seed, timesteps`` + metric columns).
     :param metric: the column scored.
@@ -43,9 +45,9 @@ def run_scores(
         span = steps[-1] - steps[0]
         auc = float(trapezoid(values, steps) / span) if span > 0 else float(values[-1])
         solved_at = np.nan
-        if solve_threshold is not None:
-            reached = np.flatnonzero(values >= solve_threshold)
-            solved_at = float(steps[reached[0]]) if reached.size else np.nan
+        if solve_threshold is not None and values[-1] >= solve_threshold:
+            below = np.flatnonzero(values < solve_threshold)
+            solved_at = float(steps[below[-1] + 1]) if below.size else float(steps[0])
         rows.append(
             {
                 "env": env_id,

@@ -183,7 +183,8 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
         "the table gives the interquartile mean (IQM) and its 95% stratified-bootstrap confidence interval "
         "(rliable, 2000 resamples); with fewer, the mean and the [min, max] of the runs. Curves: mean over runs "
         "with a 95% percentile-bootstrap band. *solved*: runs whose success rate reached "
-        f"{SUCCESS_THRESHOLD:g} (or `--solve-threshold`) at some evaluation.",
+        f"{SUCCESS_THRESHOLD:g} (or `--solve-threshold`) and stayed there until the end; *median steps to solve*: "
+        "median over those runs of the first evaluation from which it stayed there.",
         "",
     ]
     lines += _improvement_section(summary)

@@ -262,6 +262,9 @@ def compare(
                 raise
         jobs.append((spec, run_dir))
     n_skipped = len(specs) - len(jobs)
+    # seed-major order: every method gets its first runs early (balanced partial results if interrupted, and
+    # slow and fast methods interleave instead of the slowest running alone at the end)
+    jobs.sort(key=lambda job: job[0].seed)
     backend = make_backend(backend, n_workers, ray_address)
     settings = {"command": command, "specs": [spec.to_dict() for spec in specs]}
     atomic_write_text(output / "comparison.json", json.dumps(settings, indent=2) + "\n")
