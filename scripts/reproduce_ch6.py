@@ -208,6 +208,20 @@ def summarise(runs: list[dict]) -> str:
                 f"{np.median([r['coverage'] for r in sel]):.3f} | "
                 f"{np.median([r['post_exploration_steps'] for r in sel]):.0f} |"
             )
+    epsilons = sorted({r["epsilon"] for r in runs})
+    if len(epsilons) > 1:
+        lines += ["", "| task | variant | " + " | ".join(f"eps={e:g}: final (AUC)" for e in epsilons) + " |"]
+        lines.append("|---|---|" + "---|" * len(epsilons))
+        for task in dict.fromkeys(r["task"] for r in runs):
+            for variant in VARIANTS:
+                cells = []
+                for eps in epsilons:
+                    sel = [r for r in runs if r["task"] == task and r["variant"] == variant and r["epsilon"] == eps]
+                    if sel:
+                        final = np.median([r["success"][-1] for r in sel])
+                        cells.append(f"{final:.3f} ({np.mean([np.mean(r['success']) for r in sel]):.3f})")
+                if cells:
+                    lines.append(f"| {task} | {variant} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -279,7 +293,15 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=100_000, help="env steps per run (thesis figures: 200k+)")
     parser.add_argument("--eval-freq", type=int, default=10_000)
     parser.add_argument("--out", type=Path, default=Path("results/ch6"))
+    parser.add_argument("--from-json", action="store_true", help="re-summarise and re-plot OUT/results.json")
     args = parser.parse_args()
+    if args.from_json:
+        runs = json.loads((args.out / "results.json").read_text())
+        table = summarise(runs)
+        (args.out / "summary.md").write_text(table + "\n")
+        print(table)
+        plot(runs, args.out)
+        return
     th.set_num_threads(1)
     args.out.mkdir(parents=True, exist_ok=True)
     runs = []

@@ -229,3 +229,18 @@ def test_rl_zoo3_train_with_the_post_exploration_yaml(tmp_path: Path) -> None:
     assert (tmp_path / "logs" / "ddpg" / "FetchReach-v4_1" / "FetchReach-v4.zip").is_file()
     assert "IMGEP training mode on for 1 training env(s)" in result.stdout  # the callback switched the wrapper on
     assert "goals_reached_rate=" in result.stdout and "visitation_entropy=" in result.stdout
+
+
+def test_wrapper_passes_env_checkers_in_both_modes() -> None:
+    from gymnasium.utils.env_checker import check_env as gym_check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    def make() -> PostExplorationWrapper:
+        return PostExplorationWrapper(gym.make("GCRL/GrowingTreeGoal-v0"), n_pe=3, scheduler_kwargs=TREE_GOALS)
+
+    for training in (False, True):
+        env = make()
+        if training:
+            env.enable_post_exploration()
+        gym_check_env(env, skip_render_check=True)
+        sb3_check_env(make(), warn=False)
