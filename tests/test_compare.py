@@ -19,7 +19,8 @@ from gymnasium import spaces
 from stable_baselines3 import A2C
 from stable_baselines3.common.env_util import make_vec_env
 
-from sb3_gcrl.compare import EvaluationRecorder, LocalProcessBackend, compare, parse_method
+from sb3_gcrl.cli import ZOO_CONFIGS_DIR
+from sb3_gcrl.compare import PRESETS, EvaluationRecorder, LocalProcessBackend, compare, parse_method
 from sb3_gcrl.compare.cli import EXIT_USAGE
 from sb3_gcrl.compare.cli import main as compare_main
 from sb3_gcrl.compare.methods import check_env_id
@@ -359,3 +360,17 @@ def test_two_memory_runs_record_the_evaluation_memory_and_get_a_memory_figure(tm
     assert "memory_GCRL-WindyGrid-v0_2m.png" in (output / "report.md").read_text()
     with pytest.raises(ValueError, match="metric must be"):
         summarize(output, specs, metric="returns")
+
+
+@pytest.mark.parametrize("name", sorted(PRESETS))
+def test_every_preset_resolves_to_registered_envs_and_existing_configs(name):
+    preset = PRESETS[name]
+    methods = [parse_method(spec) for spec in preset.methods]
+    for env_id in preset.envs:
+        check_env_id(env_id)
+    specs = plan_runs(
+        methods, preset.envs, preset.seeds, preset.n_timesteps, preset.eval_freq, preset.n_eval_episodes,
+        preset.hyperparams, (), ZOO_CONFIGS_DIR,
+    )  # fmt: skip
+    assert len(specs) == len(preset.methods) * len(preset.envs) * len(preset.seeds)
+    assert all(Path(spec.config).is_file() for spec in specs)
