@@ -91,7 +91,7 @@ class RecordPostExploration(BaseCallback):
 def test_post_exploration_starts_only_on_success_and_lasts_n_pe_steps() -> None:
     model = make_model(epsilon=0.0, post_exploration_rule=FixedSteps(3))
     model.policy.q[:, :, 1] = 1.0  # greedy: always right, reaches goal 4 after 4 steps
-    model._sample_goal = lambda obs: 4  # type: ignore[method-assign]
+    model._sample_goal = lambda: 4  # type: ignore[method-assign]
     model.goal_space.add(np.array([[0.0]]))
     recorder = RecordPostExploration()
     model.learn(70, callback=recorder, log_interval=0)
@@ -104,7 +104,7 @@ def test_post_exploration_starts_only_on_success_and_lasts_n_pe_steps() -> None:
 def test_no_post_exploration_without_success_or_when_switched_off() -> None:
     model = make_model(epsilon=0.0, post_exploration_rule=FixedSteps(3))
     model.policy.q[:, :, 0] = 1.0  # greedy: always left, never reaches goal 4
-    model._sample_goal = lambda obs: 4  # type: ignore[method-assign]
+    model._sample_goal = lambda: 4  # type: ignore[method-assign]
     model.goal_space.add(np.array([[0.0]]))
     recorder = RecordPostExploration()
     model.learn(40, callback=recorder, log_interval=0)
@@ -112,7 +112,7 @@ def test_no_post_exploration_without_success_or_when_switched_off() -> None:
     assert len(recorder.flags) == 40  # two full 20-step episodes
     off = make_model(epsilon=0.0, post_exploration=False)
     off.policy.q[:, :, 1] = 1.0
-    off._sample_goal = lambda obs: 4  # type: ignore[method-assign]
+    off._sample_goal = lambda: 4  # type: ignore[method-assign]
     off.goal_space.add(np.array([[0.0]]))
     off.learn(40, log_interval=0)
     assert off._n_post_exploration_steps == 0 and off._n_episodes == 10  # every episode ends at the goal
@@ -121,7 +121,7 @@ def test_no_post_exploration_without_success_or_when_switched_off() -> None:
 def test_proportional_post_exploration_length_and_executed_actions_are_stored() -> None:
     model = make_model(epsilon=0.0, post_exploration_rule=ProportionalSteps(0.5))
     model.policy.q[:, :, 1] = 1.0
-    model._sample_goal = lambda obs: 4  # type: ignore[method-assign]
+    model._sample_goal = lambda: 4  # type: ignore[method-assign]
     model.goal_space.add(np.array([[0.0]]))
     env = model.goal_env.env
     env.executed.clear()
@@ -134,11 +134,11 @@ def test_proportional_post_exploration_length_and_executed_actions_are_stored() 
 def test_goal_sampling_follows_eq_6_5() -> None:
     model = make_model(tau=1.0)
     model.goal_space.counts[[1, 2, 5]] = [1, 2, 4]
-    samples = np.array([model._sample_goal({}) for _ in range(20_000)])
+    samples = np.array([model._sample_goal() for _ in range(20_000)])
     freq = np.array([(samples == g).mean() for g in (1, 2, 5)])
     np.testing.assert_allclose(freq, np.array([1, 0.5, 0.25]) / 1.75, atol=0.015)
     model.tau = 0.0
-    samples = np.array([model._sample_goal({}) for _ in range(6_000)])
+    samples = np.array([model._sample_goal() for _ in range(6_000)])
     np.testing.assert_allclose([(samples == g).mean() for g in (1, 2, 5)], 1 / 3, atol=0.03)
 
 

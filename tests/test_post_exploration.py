@@ -128,6 +128,9 @@ def test_post_exploration_starts_on_success_lasts_n_pe_steps_and_reports_execute
     np.testing.assert_allclose(env.env.executed[-3:], executed)  # the base env ran the random actions
     assert any(np.abs(a).sum() > 0 for a in executed)  # not the agent's zero action
     assert env.post_exploration_steps == 3 and env.goals_reached == 1
+    # visit counts of the shared binned goal space: 2 resets + 7 steps, heights binned 0.1 wide over [-2, 2]
+    assert env.goal_space.counts.sum() == 9
+    assert env.goal_space.counts[env.goal_space.bin_index(np.array([0.0]))] >= 5  # 2 resets + 3 zero steps + 1
 
 
 def test_without_post_exploration_the_episode_ends_at_the_goal() -> None:

@@ -206,7 +206,7 @@ class TabularIMGEP(BaseAlgorithm):
         best = np.flatnonzero(q == q.max())
         return int(best[0] if best.size == 1 else self._rng.choice(best))
 
-    def _sample_goal(self, first_obs: dict[str, Any]) -> int | None:
+    def _sample_goal(self) -> int | None:
         """Eq. 6.5 over the visited goals; None while the goal space is empty (random-policy episode)."""
         if self.goal_space.n_visited == 0:
             return None
@@ -245,7 +245,7 @@ class TabularIMGEP(BaseAlgorithm):
 
     def _run_episode(self, callback: BaseCallback, total_timesteps: int) -> bool:
         env = self.goal_env
-        goal = self._sample_goal({})
+        goal = self._sample_goal()
         obs, _ = env.reset(options={"goal": goal} if goal is not None else None)
         state = int(obs["observation"])
         first_goal = int(obs["achieved_goal"])
