@@ -240,15 +240,13 @@ def test_ant_leaves_no_temporary_xml():
 
 
 def _launch_block(env: fetch_module.ResetFreeFetchEnv, direction: np.ndarray, speed: float = 3.0) -> np.ndarray:
-    """Give the block a horizontal velocity towards ``direction``; return its xy after 1.2 s of zero actions."""
+    """Give the block a horizontal velocity towards ``direction``; return its path over 1.2 s of zero actions."""
     env.reset(seed=0)
     qvel = env._utils.get_joint_qvel(env.model, env.data, "object0:joint").copy()
     qvel[:] = 0.0
     qvel[:2] = speed * direction
     env._utils.set_joint_qvel(env.model, env.data, "object0:joint", qvel)
-    for _ in range(30):
-        obs, *_ = env.step(np.zeros(4))
-    return obs["achieved_goal"]
+    return np.array([env.step(np.zeros(4))[0]["achieved_goal"] for _ in range(30)])
 
 
 DIRECTIONS = [np.array(d, dtype=float) for d in ((1, 0), (-1, 0), (0, 1), (0, -1))]
@@ -259,12 +257,47 @@ def test_walls_stop_a_launched_block(cls):
     env = cls()
     low, high = np.asarray(env.wall_low), np.asarray(env.wall_high)
     for direction in DIRECTIONS:
-        block = _launch_block(env, direction)
-        assert np.all(block[:2] >= low) and np.all(block[:2] <= high), (direction, block)
-        assert block[2] > fetch_module.TABLE_TOP_Z  # still on the table
-        # It reached the wall it was thrown at (within a few cm): the launch was strong enough to matter.
-        reach = np.where(direction > 0, high - block[:2], block[:2] - low)[direction != 0]
-        assert reach.item() < 0.06
+        path = _launch_block(env, direction)
+        assert np.all(path[:, :2] >= low) and np.all(path[:, :2] <= high), direction
+        assert np.all(path[:, 2] > fetch_module.TABLE_TOP_Z)  # still on the table
+        # It hit the wall it was thrown at: its centre came within the block's half diagonal (3.5 cm) of the face.
+        gap = np.where(direction > 0, high - path[:, :2].max(0), path[:, :2].min(0) - low)[direction != 0]
+        assert gap.item() < 0.036
+    env.close()
+
+
+def _press_block_into_wall(env: fetch_module.ResetFreeFetchEnv, direction: np.ndarray) -> np.ndarray:
+    """Bring the gripper behind the block, then keep shoving it towards ``direction``; return the block path."""
+    obs, _ = env.reset(seed=0)
+    path = []
+    for t in range(100):
+        gripper, block = obs["observation"][:3], obs["achieved_goal"]
+        behind = block[:2] - 0.06 * direction
+        action = np.zeros(4)
+        if t < 40 and np.linalg.norm(gripper[:2] - behind) > 0.01:  # approach from behind, 3 cm higher
+            action[:2] = np.clip((behind - gripper[:2]) / 0.05, -1, 1)
+            action[2] = np.clip((block[2] + 0.03 - gripper[2]) / 0.05, -1, 1)
+        else:
+            action[:2] = direction
+            action[2] = np.clip((block[2] - gripper[2]) / 0.05, -1, 1)
+        obs, *_ = env.step(action)
+        path.append(obs["achieved_goal"].copy())
+    return np.array(path)
+
+
+@pytest.mark.parametrize("cls", [fetch_module.ResetFreeFetchPushEnv, fetch_module.ResetFreeFetchPushHardEnv])
+def test_gripper_cannot_squeeze_the_block_through_a_wall(cls):
+    """The arm presses the block into each wall. Object-only walls alone would let it through (the arm passes
+    them and soft contacts yield: the block ends up off the table); stiff wall contacts plus the position clamp
+    keep the block centre within 1 cm of the wall faces."""
+    env = cls()
+    low, high = np.asarray(env.wall_low) + 0.015, np.asarray(env.wall_high) - 0.015
+    for direction in DIRECTIONS:
+        path = _press_block_into_wall(env, direction)
+        assert np.all(path[:, :2] >= low) and np.all(path[:, :2] <= high), direction
+        # The block did reach the wall it was pushed at.
+        reached = np.where(direction > 0, high - path[:, :2].max(0), path[:, :2].min(0) - low)[direction != 0]
+        assert reached.item() < 0.02
     env.close()
 
 

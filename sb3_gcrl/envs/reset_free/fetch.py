@@ -73,7 +73,10 @@ HARD_OBJECT_START = (1.30, 0.75)
 HARD_AIR_GOAL_HALF_XY = 0.025
 HARD_AIR_GOAL_HEIGHT = (0.10, 0.20)
 
-_WALL_HALF_THICKNESS = 0.01
+_WALL_HALF_THICKNESS = 0.02
+_BLOCK_HALF_SIZE = 0.025
+# How far (metres) the block centre may press into a wall before the position clamp takes over.
+_CLAMP_TOLERANCE = 0.005
 # Collision bit shared only by the block and the object-only walls (bit 0 is MuJoCo's default).
 _OBJECT_ONLY_BIT = 2
 
@@ -138,6 +141,14 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
         )
         self._mocap_low = None if self.gripper_low is None else np.asarray(self.gripper_low, dtype=np.float64)
         self._mocap_high = None if self.gripper_high is None else np.asarray(self.gripper_high, dtype=np.float64)
+        # Bounds of the block centre (xy) used by the clamp in _step_callback: the walls' inner faces minus the
+        # block's half size, plus a tolerance so that ordinary wall contacts never trigger it.
+        inset = _BLOCK_HALF_SIZE - _CLAMP_TOLERANCE
+        self._block_low = np.asarray(self.wall_low, dtype=np.float64) + inset
+        self._block_high = np.asarray(self.wall_high, dtype=np.float64) - inset
+        joint = self.model.joint("object0:joint")
+        self._block_qpos = slice(int(joint.qposadr[0]), int(joint.qposadr[0]) + 2)
+        self._block_qvel = slice(int(joint.dofadr[0]), int(joint.dofadr[0]) + 2)
 
     # --- scene construction -------------------------------------------------------------------------------------
     def _initialize_simulation(self) -> None:
@@ -185,6 +196,11 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
                 contype=bits,
                 conaffinity=bits,
                 condim=3,
+                # Stiff contacts (MuJoCo's defaults are solref (0.02, 1), solimp (0.9, 0.95)), dominating the
+                # block's parameters in the mix: a gripper pressing the block into a wall cannot squeeze it in.
+                solref=[0.01, 1.0],
+                solimp=[0.99, 0.999, 0.001, 0.5, 2.0],
+                solmix=1000.0,
             )
 
     # --- dynamics -----------------------------------------------------------------------------------------------
@@ -193,6 +209,19 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
         if self._mocap_low is not None:
             # Limited robot workspace: the gripper's target never leaves the walled arena.
             np.clip(self.data.mocap_pos, self._mocap_low, self._mocap_high, out=self.data.mocap_pos)
+
+    def _step_callback(self) -> None:
+        super()._step_callback()  # keeps a blocked gripper closed
+        # Safety net behind the walls: a gripper pressing the block into a wall can squeeze it through the soft
+        # contact (always possible with the object-only walls, which the arm passes). A block centre past the
+        # walls is put back on the boundary with its outward velocity removed - a hard position limit, like the
+        # joint limits of IBC's version.
+        xy = self.data.qpos[self._block_qpos]
+        below, above = xy < self._block_low, xy > self._block_high
+        if below.any() or above.any():
+            self.data.qvel[self._block_qvel][below | above] = 0.0
+            self.data.qpos[self._block_qpos] = np.clip(xy, self._block_low, self._block_high)
+            mujoco.mj_forward(self.model, self.data)
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = super().step(action)
@@ -211,11 +240,6 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
 
     def _sample_goal(self) -> np.ndarray:
         return self.sample_evaluation_goal(self.np_random)
-
-    def compute_terminated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: dict) -> bool:
-        # The only state the robot cannot leave: the block fell off the table (the walls make this practically
-        # impossible; a block lifted over a hard-task wall and dropped outside would be one).
-        return bool(achieved_goal[2] < TABLE_TOP_Z - 0.05)
 
     # --- task-relevant goals ------------------------------------------------------------------------------------
     def sample_initial_goal(self, rng: np.random.Generator) -> np.ndarray:
