@@ -5,8 +5,15 @@ Four goal environments built on gymnasium-robotics' ``MujocoFetchEnv`` (the ``Fe
 ``FetchPickAndPlace-v4`` robot, table and block). All keep Fetch's spaces: ``observation`` (25,),
 ``achieved_goal``/``desired_goal`` (3,) block position, action Box(-1, 1, (4,)) (xyz gripper displacement
 x 5 cm + finger command), sparse reward ``-(d > 0.05)`` with ``info["is_success"] = d < 0.05`` (Fetch's). They
-terminate only if the block falls off the table, the one state the robot could not leave (the walls make it
-practically impossible). Registered with ``max_episode_steps=EVAL_HORIZON``.
+never terminate: the block cannot leave the table, so every state can be left. Registered with
+``max_episode_steps=EVAL_HORIZON``.
+
+Keeping the block in: the walls' contacts are stiffer than MuJoCo's defaults (a gripper pressing the block into
+a wall would otherwise squeeze it through the soft contact - with object-only walls, which the arm passes, in
+a few dozen steps), and behind them a position clamp puts a block centre that is more than 5 mm into a wall
+back on the boundary with its outward velocity removed (a hard limit, as IBC's joint limits; in 4000 steps of
+a scripted arm shoving the block at the walls it fired 3 times in ``ResetFreeFetchPush`` and never in the
+hard tasks).
 
 ``GCRL/ResetFreeFetchPush-v0``, ``GCRL/ResetFreeFetchPickAndPlace-v0`` (IBC's "ergodic" Fetch, thesis: "taken
 from the IBC paper"):
