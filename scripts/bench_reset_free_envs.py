@@ -5,6 +5,7 @@ table shows the median steps/s over ``--repeats`` runs in one process. Usage::
 
     nice -n 10 python scripts/bench_reset_free_envs.py            # all envs, 2000 steps x 3 repeats
     python scripts/bench_reset_free_envs.py --steps 500 --ids GCRL/Tabletop-v0
+    python scripts/bench_reset_free_envs.py --wall-stress 4000   # can the arm push the block out?
 """
 
 from __future__ import annotations
@@ -41,13 +42,55 @@ def steps_per_second(env: gym.Env, n_steps: int, seed: int) -> float:
     return n_steps / (time.perf_counter() - start)
 
 
+def wall_stress(env_id: str, n_steps: int, seed: int = 0) -> tuple[int, int, float]:
+    """A scripted arm shoves the block at a random wall (new direction every 100 steps, random fingers, bursts
+    of random actions). Returns (steps with the block outside the walls, clamp firings, highest block z)."""
+    env = gym.make(env_id).unwrapped
+    rng = np.random.default_rng(seed)
+    low, high = np.asarray(env.wall_low), np.asarray(env.wall_high)
+    obs, _ = env.reset(seed=seed)
+    outside, max_z, direction = 0, 0.0, np.zeros(2)
+    for t in range(n_steps):
+        if t % 100 == 0:
+            direction = rng.normal(size=2)
+            direction /= np.linalg.norm(direction)
+        gripper, block = obs["observation"][:3], obs["achieved_goal"]
+        behind = block[:2] - 0.05 * direction
+        action = np.zeros(4)
+        if t % 100 < 40 and np.linalg.norm(gripper[:2] - behind) > 0.02:  # get behind the block
+            action[:2] = np.clip((behind - gripper[:2]) / 0.05, -1, 1)
+            action[2] = np.clip((block[2] + 0.05 - gripper[2]) / 0.05, -1, 1)
+        else:  # shove it towards the wall
+            action[:2] = direction
+            action[2] = np.clip((block[2] - gripper[2]) / 0.05, -1, 1)
+        action[3] = rng.uniform(-1, 1)
+        if t % 500 > 450:
+            action = rng.uniform(-1, 1, size=4)
+        obs, *_ = env.step(action)
+        block = obs["achieved_goal"]
+        outside += not (np.all(block[:2] >= low) and np.all(block[:2] <= high))
+        max_z = max(max_z, float(block[2]))
+    env.close()
+    return outside, env.n_block_clamps, max_z
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=2000, help="steps per repeat (Tabletop runs 10x more)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--ids", nargs="*", default=None, help="env ids (default: the whole suite + baselines)")
+    parser.add_argument(
+        "--wall-stress", type=int, default=0, metavar="STEPS", help="instead: shove the Fetch block at the walls"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
+
+    if args.wall_stress:
+        print(f"{'env':<42} {'steps outside':>14} {'clamp firings':>14} {'max block z':>12}")
+        for env_id in [i for i in RESET_FREE_ENV_IDS if "Fetch" in i]:
+            outside, clamps, max_z = wall_stress(env_id, args.wall_stress)
+            print(f"{env_id:<42} {outside:>14} {clamps:>14} {max_z:>12.3f}")
+        return
 
     if args.ids:
         targets = [(env_id, env_id, {}) for env_id in args.ids]

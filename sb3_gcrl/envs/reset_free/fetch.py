@@ -153,6 +153,8 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
         inset = _BLOCK_HALF_SIZE - _CLAMP_TOLERANCE
         self._block_low = np.asarray(self.wall_low, dtype=np.float64) + inset
         self._block_high = np.asarray(self.wall_high, dtype=np.float64) - inset
+        #: How often the position clamp fired since construction (a diagnostic: walls alone should hold).
+        self.n_block_clamps = 0
         joint = self.model.joint("object0:joint")
         self._block_qpos = slice(int(joint.qposadr[0]), int(joint.qposadr[0]) + 2)
         self._block_qvel = slice(int(joint.dofadr[0]), int(joint.dofadr[0]) + 2)
@@ -226,6 +228,7 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
         xy = self.data.qpos[self._block_qpos]
         below, above = xy < self._block_low, xy > self._block_high
         if below.any() or above.any():
+            self.n_block_clamps += 1
             self.data.qvel[self._block_qvel][below | above] = 0.0
             self.data.qpos[self._block_qpos] = np.clip(xy, self._block_low, self._block_high)
             mujoco.mj_forward(self.model, self.data)
