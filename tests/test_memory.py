@@ -268,3 +268,18 @@ def test_discounted_returns_and_episode_buffers():
     np.testing.assert_array_equal(keys[:, 0], [10, 11, 12, 13, 14])
     np.testing.assert_array_equal(rewards, [0, 2, 4, 6, 8])
     assert buffers.lengths.tolist() == [5, 0]
+
+
+@pytest.mark.parametrize("capacity", [15, 200])
+def test_cec_batched_episode_update_equals_sequential_updates(capacity):
+    rng = np.random.default_rng(capacity)
+    batched, sequential = make_cec(capacity, distance_threshold=0.3), make_cec(capacity, distance_threshold=0.3)
+    for _ in range(6):
+        # a random walk revisits its own states, so the episode overwrites rows it wrote itself
+        keys = np.cumsum(rng.normal(0, 0.2, (60, 1)), axis=0).astype(np.float32)
+        actions, returns = rng.uniform(-1, 1, (60, 1)).astype(np.float32), rng.random(60)
+        counts = batched.update_episode(keys, actions, returns)
+        outcomes = [sequential.update(keys[t], actions[t], returns[t]) for t in range(59, -1, -1)]
+        assert counts == {name: outcomes.count(name) for name in counts}
+        for name in ("keys", "actions", "values", "last_update"):
+            np.testing.assert_array_equal(batched.state_dict()[name], sequential.state_dict()[name])

@@ -118,6 +118,11 @@ class CECMemory:
     def update_episode(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
         """Update the memory with one finished episode (thesis Algorithm 1, UPDATE).
 
+        Equivalent to calling :meth:`update` for ``t = T-1, ..., 0``, but the nearest-row searches
+        against the pre-episode table are batched into one query; rows written during the episode
+        are searched by brute force (they are few), and a row the episode itself overwrote falls back
+        to an exact live query.
+
         :param keys: ``(T, key_dim)`` state keys in time order.
         :param actions: ``(T, action_dim)`` actions taken.
         :param returns: ``(T,)`` discounted returns (see :func:`~sb3_gcrl.memory.episode.discounted_returns`).
@@ -129,8 +134,68 @@ class CECMemory:
         if not (len(keys) == len(actions) == len(returns)):
             raise ValueError(f"keys, actions, returns lengths differ: {len(keys)}, {len(actions)}, {len(returns)}")
         counts = {ADDED: 0, EVICTED: 0, REPLACED: 0, REFRESHED: 0}
-        for t in range(len(keys) - 1, -1, -1):  # Algorithm 1 pops the episode from its end
-            counts[self.update(keys[t], actions[t], float(returns[t]))] += 1
+        n_steps = len(keys)
+        if n_steps == 0:
+            return counts
+        n_before = self.index.size
+        n_candidates = min(4, n_before)
+        if n_candidates:
+            pre_dist, pre_rows = self.index.search(keys, n_candidates)
+            pre_dist_list, pre_rows_list = pre_dist.tolist(), pre_rows.tolist()
+        overwritten: set[int] = set()  # pre-episode rows whose key this episode changed
+        written_rows = np.empty(n_steps, dtype=np.int64)  # rows written this episode and their keys
+        written_keys = np.empty((n_steps, self.key_dim), dtype=np.float32)
+        written_pos: dict[int, int] = {}
+        n_written = 0
+        threshold = self.distance_threshold
+        returns_list = returns.tolist()
+        for t in range(n_steps - 1, -1, -1):  # Algorithm 1 pops the episode from its end
+            key, value = keys[t], returns_list[t]
+            best_dist, best_row = np.inf, -1
+            search_written = True
+            if n_candidates:
+                for dist, row in zip(pre_dist_list[t], pre_rows_list[t]):
+                    if row not in overwritten:
+                        best_dist, best_row = dist, row
+                        break
+                else:  # every candidate was overwritten by this episode: exact live query
+                    live_dist, live_rows = self.index.search(key[None], 1)
+                    best_dist, best_row = float(live_dist[0, 0]), int(live_rows[0, 0])
+                    search_written = False
+            if search_written and n_written:
+                diff = written_keys[:n_written] - key
+                sq = np.einsum("ij,ij->i", diff, diff)
+                j = int(sq.argmin())
+                dist = float(np.sqrt(sq[j]))
+                if dist < best_dist:
+                    best_dist, best_row = dist, int(written_rows[j])
+            if best_row >= 0 and best_dist < threshold:
+                if value > self.values[best_row]:
+                    self._write(best_row, key, actions[t], value)
+                    outcome = REPLACED
+                else:
+                    self.recency.touch(best_row)
+                    counts[REFRESHED] += 1
+                    continue
+            elif self.index.size < self.capacity:
+                best_row = self.index.add(key)
+                self.actions[best_row] = actions[t]
+                self.values[best_row] = value
+                self.recency.touch(best_row)
+                outcome = ADDED
+            else:
+                best_row = self.recency.oldest()
+                self._write(best_row, key, actions[t], value)
+                outcome = EVICTED
+            counts[outcome] += 1
+            if best_row < n_before:
+                overwritten.add(best_row)
+            pos = written_pos.get(best_row)
+            if pos is None:
+                pos = written_pos[best_row] = n_written
+                written_rows[pos] = best_row
+                n_written += 1
+            written_keys[pos] = key
         return counts
 
     # ------------------------------------------------------------------ action selection

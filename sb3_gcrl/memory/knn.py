@@ -74,6 +74,7 @@ class KNNIndex:
         self.n_rebuilds = 0
         self._tree: cKDTree | None = None
         self._tree_size = 0
+        self._current_threshold = 0
         # rows of the tree snapshot whose key was overwritten since the build
         self._stale = np.zeros(self.capacity, dtype=bool)
         self._n_stale = 0
@@ -156,6 +157,7 @@ class KNNIndex:
         self._stale[: self._tree_size] = False
         self._n_stale = 0
         self._tree_size = self.size
+        self._current_threshold = self._threshold_for(self.size)
         # balanced_tree/compact_nodes off: ~2x faster builds, queries barely slower
         self._tree = cKDTree(self.keys[: self.size], leafsize=16, balanced_tree=False, compact_nodes=False)
         self.n_rebuilds += 1
@@ -177,7 +179,7 @@ class KNNIndex:
             return np.full((n_queries, max(k, 0)), np.inf), np.full((n_queries, max(k, 0)), -1, dtype=np.int64)
         if self.backend == "flat":
             return self._search_flat(queries, k)
-        if self._tree is None or self._delta_overflow or self._n_delta > self._threshold_for(self.size):
+        if self._tree is None or self._delta_overflow or self._n_delta > self._current_threshold:
             self.rebuild()
         dist, rows = self._search_tree(queries, k)
         if self._n_delta:
@@ -239,15 +241,32 @@ class KNNIndex:
         order = np.argsort(~valid, axis=1, kind="stable")[:, :k]
         return np.take_along_axis(dist, order, axis=1), np.take_along_axis(rows, order, axis=1)
 
+    def _search_delta(self, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """k nearest among the rows written since the last build: ``(distances, rows)``, unsorted."""
+        m = self._n_delta
+        delta_keys = self._delta_keys[:m]
+        if len(queries) * m > 1 << 16:
+            # many queries (batched episode updates): a throw-away KD-tree over the delta is cheaper
+            dist, pos = cKDTree(delta_keys).query(queries, k=min(k, m))
+            if dist.ndim == 1:
+                dist, pos = dist[:, None], pos[:, None]
+            return dist, self._delta_rows[pos]
+        diff = delta_keys[None, :, :] - queries[:, None, :]
+        sq = np.einsum("qmd,qmd->qm", diff, diff)
+        if m > k:
+            pos = np.argpartition(sq, k - 1, axis=1)[:, :k]
+            sq = np.take_along_axis(sq, pos, axis=1)
+        else:
+            pos = np.broadcast_to(np.arange(m), sq.shape)
+        return np.sqrt(sq, dtype=np.float64), self._delta_rows[pos]
+
     def _merge_delta(
         self, queries: np.ndarray, k: int, dist: np.ndarray, rows: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        m = self._n_delta
-        sq, pos = faiss.knn(queries, self._delta_keys[:m], min(k, m))
-        d_delta = np.sqrt(sq, dtype=np.float64)
-        if dist.shape[1] == k and not (d_delta[:, 0] < dist[:, -1]).any():
+        d_delta, r_delta = self._search_delta(queries, k)
+        if dist.shape[1] == k and not (d_delta.min(axis=1) < dist[:, -1]).any():
             return dist, rows  # no written row is among the k nearest
         all_d = np.concatenate([dist, d_delta], axis=1)
-        all_r = np.concatenate([rows, self._delta_rows[pos]], axis=1)
+        all_r = np.concatenate([rows, r_delta], axis=1)
         order = np.argsort(all_d, axis=1, kind="stable")[:, :k]
         return np.take_along_axis(all_d, order, axis=1), np.take_along_axis(all_r, order, axis=1)

@@ -1,0 +1,186 @@
+"""Speed of the episodic memories (issue 7): query latency, update cost, end-to-end training steps/s.
+
+Prints three tables (single thread: torch, faiss and BLAS pinned to one thread):
+
+1. CEC memory vs size (1e3 .. 1e6 rows) and key dimension (3, 8, 64): median latency of one
+   action-selection query (``select_actions``, k=5) and the cost of one 1000-step episode update
+   (``update_episode``), with Gaussian keys (the hardest case for a KD-tree) and 10% of the episode
+   far enough from the table to be added.
+2. MFEC action selection on MinAtar (Breakout: 3 actions, Seaquest: 6) with ``rows_per_action``
+   rows per action and 8-dim projected keys: median microseconds per env step for ``policy.act``.
+   The tables are filled with the projected keys of real observations from random play plus
+   copies of them jittered by 1% of the key scale (random play visits only a few thousand
+   distinct states, far fewer than 1e5).
+3. End-to-end training throughput: CEC on ``GCRL/PointUMaze-v0`` starting from a memory pre-filled
+   with ``rows`` rows (real states of random play, jittered), and MFEC on ``MinAtar/Breakout-v1``,
+   next to the raw env's random-action steps/s measured in the same run.
+
+Usage: ``python scripts/bench_memory.py [--quick]`` (``--quick``: smaller sizes, for a smoke test).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from functools import partial
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import faiss  # noqa: E402
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+import sb3_gcrl  # noqa: E402, F401
+from sb3_gcrl import CEC, MFEC  # noqa: E402
+from sb3_gcrl.memory import CECMemory  # noqa: E402
+
+torch.set_num_threads(1)
+faiss.omp_set_num_threads(1)
+
+
+def median_us(fn, queries: np.ndarray) -> float:
+    """Median microseconds of ``fn(one_query)`` over the rows of ``queries``."""
+    times = np.empty(len(queries))
+    for i in range(len(queries)):
+        query = queries[i : i + 1]
+        start = time.perf_counter()
+        fn(query)
+        times[i] = time.perf_counter() - start
+    return float(np.median(times) * 1e6)
+
+
+def fill_cec(memory: CECMemory, keys: np.ndarray, rng: np.random.Generator) -> None:
+    n = len(keys)
+    memory.load_state_dict(
+        {
+            "keys": keys,
+            "actions": rng.uniform(-1, 1, (n, memory.action_dim)).astype(np.float32),
+            "values": rng.random(n),
+            "last_update": np.arange(1, n + 1),
+            "clock": n,
+        }
+    )
+
+
+def table_cec_memory(sizes: list[int], dims: list[int], queries: int) -> None:
+    print("\n## CEC memory: action selection (median us / query, k=5) and update (ms / 1000-step episode)")
+    print(f"{'rows':>9} {'dim':>4} {'backend':>8} {'select us':>10} {'update ms':>10} {'build s':>8}")
+    rng = np.random.default_rng(0)
+    for dim in dims:
+        for size in sizes:
+            memory = CECMemory(dim, 2, capacity=size + 2000, distance_threshold=0.5, n_neighbors=5)
+            keys = rng.standard_normal((size, dim)).astype(np.float32)
+            fill_cec(memory, keys, rng)
+            q = rng.standard_normal((queries, dim)).astype(np.float32)
+            start = time.perf_counter()
+            memory.select_actions(q[:1], rng)  # first query builds the KD-tree (if any)
+            build = time.perf_counter() - start
+            select = median_us(partial(memory.select_actions, rng=rng), q)
+            # an episode of states near stored rows, 10% of them far away (-> added)
+            episode = keys[rng.integers(size, size=1000)] + 0.05 * rng.standard_normal((1000, dim)).astype(np.float32)
+            episode[::10] += 10.0
+            start = time.perf_counter()
+            memory.update_episode(episode, rng.uniform(-1, 1, (1000, 2)), rng.random(1000))
+            update_ms = (time.perf_counter() - start) * 1e3
+            print(f"{size:>9} {dim:>4} {memory.index.backend:>8} {select:>10.1f} {update_ms:>10.1f} {build:>8.2f}")
+            del memory
+
+
+def collect_keys(env_id: str, embed, n_steps: int, seed: int = 0) -> np.ndarray:
+    env = gym.make(env_id)
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    observations = []
+    for _ in range(n_steps):
+        observations.append(obs)
+        obs, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            obs, _ = env.reset(seed=int(rng.integers(1 << 30)))
+    env.close()
+    return embed(np.asarray(observations))
+
+
+def jittered(keys: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    unique = np.unique(keys, axis=0)
+    scale = 0.01 * keys.std(axis=0, keepdims=True)
+    picks = unique[rng.integers(len(unique), size=n)]
+    out = picks + scale * rng.standard_normal(picks.shape).astype(np.float32)
+    out[: len(unique)] = unique[:n]
+    return out.astype(np.float32)
+
+
+def table_mfec_selection(rows_per_action: int, steps: int) -> None:
+    print(f"\n## MFEC action selection, {rows_per_action} rows per action, 8-dim keys (median us / env step)")
+    print(f"{'env':>22} {'actions':>7} {'distinct real states':>20} {'act us':>8}")
+    rng = np.random.default_rng(0)
+    for env_id in ("MinAtar/Breakout-v1", "MinAtar/Seaquest-v1"):
+        model = MFEC("MFECPolicy", gym.make(env_id), capacity_per_action=rows_per_action, seed=0)
+        policy = model.policy
+        real = collect_keys(env_id, policy.embedding, 50_000)
+        for table in policy.memory.tables:
+            keys = jittered(real, rows_per_action, rng)
+            table.load_state_dict(
+                {
+                    "keys": keys,
+                    "values": rng.random(len(keys)),
+                    "last_update": np.arange(1, len(keys) + 1),
+                    "clock": len(keys),
+                }
+            )
+        queries = real[rng.integers(len(real), size=steps)]
+        policy.act(queries[:1])
+        act = median_us(policy.act, queries)
+        n_actions = policy.action_space.n
+        print(f"{env_id:>22} {n_actions:>7} {len(np.unique(real, axis=0)):>20} {act:>8.1f}")
+
+
+def raw_steps_per_second(env_id: str, n_steps: int) -> float:
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    start = time.perf_counter()
+    for _ in range(n_steps):
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+    return n_steps / (time.perf_counter() - start)
+
+
+def table_end_to_end(rows: int, steps: int) -> None:
+    print(f"\n## End-to-end training (1 env), CEC memory pre-filled with {rows} rows")
+    print(f"{'algo':>5} {'env':>20} {'memory rows':>12} {'train steps/s':>14} {'raw env steps/s':>16}")
+    rng = np.random.default_rng(0)
+    env_id = "GCRL/PointUMaze-v0"
+    model = CEC("CECPolicy", gym.make(env_id), capacity=1_000_000, seed=0)
+    fill_cec(model.policy.memory, jittered(collect_keys(env_id, model.policy.embedding, 20_000), rows, rng), rng)
+    raw = raw_steps_per_second(env_id, steps)
+    start = time.perf_counter()
+    model.learn(steps, log_interval=None)
+    cec_rate = steps / (time.perf_counter() - start)
+    print(f"{'CEC':>5} {env_id:>20} {len(model.policy.memory):>12} {cec_rate:>14.0f} {raw:>16.0f}")
+    env_id = "MinAtar/Breakout-v1"
+    model = MFEC("MFECPolicy", gym.make(env_id), capacity_per_action=100_000, seed=0)
+    raw = raw_steps_per_second(env_id, steps)
+    start = time.perf_counter()
+    model.learn(steps, log_interval=None)
+    mfec_rate = steps / (time.perf_counter() - start)
+    print(f"{'MFEC':>5} {env_id:>20} {len(model.policy.memory):>12} {mfec_rate:>14.0f} {raw:>16.0f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="small sizes (smoke test)")
+    args = parser.parse_args()
+    if args.quick:
+        table_cec_memory([1_000, 10_000], [3, 8], queries=200)
+        table_mfec_selection(10_000, steps=300)
+        table_end_to_end(10_000, steps=2_000)
+    else:
+        table_cec_memory([1_000, 10_000, 100_000, 1_000_000], [3, 8, 64], queries=500)
+        table_mfec_selection(100_000, steps=2_000)
+        table_end_to_end(100_000, steps=20_000)
+
+
+if __name__ == "__main__":
+    main()
