@@ -58,6 +58,7 @@ DEEP_TASKS = {
         "noise": 0.01,
         "low": [1.0, 0.4, 0.35],
         "high": [1.7, 1.1, 0.95],
+        "eval_steps": 50,
     },
     "PointUMaze": {
         "env_id": "GCRL/PointUMazeGoal-v0",
@@ -67,6 +68,7 @@ DEEP_TASKS = {
         "noise": 0.1,
         "low": [-1.5, -1.5],
         "high": [1.5, 1.5],
+        "eval_steps": 150,  # per goal of the grid (the env's horizon is 300)
     },
 }
 
@@ -115,7 +117,6 @@ def run_deep(task: str, variant: str, seed: int, algo: str, steps: int, eval_fre
         gym.make(spec["env_id"]), post_exploration=variant != "off", scheduler_kwargs=goal_kwargs, **rule
     )
     eval_env = PostExplorationWrapper(gym.make(spec["env_id"]), n_pe=1, scheduler="env_default")  # episodic
-    horizon = env.spec.max_episode_steps if env.spec is not None else 300
     kwargs = {
         "learning_rate": 1e-3,
         "gamma": 0.98,
@@ -130,7 +131,8 @@ def run_deep(task: str, variant: str, seed: int, algo: str, steps: int, eval_fre
         n_actions = env.action_space.shape[0]
         kwargs["action_noise"] = NormalActionNoise(np.zeros(n_actions), spec["noise"] * np.ones(n_actions))
     model = (DDPG if algo == "ddpg" else SAC)("MultiInputPolicy", env, **kwargs)
-    recorder = EntropyRecorder(eval_env, eval_freq=eval_freq, goals=deep_goal_grid(task, eval_env), max_steps=horizon)
+    goals = deep_goal_grid(task, eval_env)
+    recorder = EntropyRecorder(eval_env, eval_freq=eval_freq, goals=goals, max_steps=spec["eval_steps"])
     start = time.perf_counter()
     model.learn(steps, callback=[PostExplorationCallback(log_freq=eval_freq), recorder])
     return {
