@@ -29,6 +29,7 @@ class Summary:
     :param summary: per (env, method) aggregates (see :func:`~sb3_gcrl.analysis.statistics.aggregate_scores`).
     :param metrics: metric used per env.
     :param failed: ``(spec, error, log path)`` of the runs that failed.
+    :param run_wall_times: wall time (s) of every finished run, as its worker measured it.
     :param table: the printed Markdown table.
     """
 
@@ -38,6 +39,7 @@ class Summary:
     metrics: dict[str, str]
     failed: list[tuple[RunSpec, str, Path]]
     table: str
+    run_wall_times: list[float]
 
 
 def _format_interval(value: float, low: float, high: float, digits: int) -> str:
@@ -103,12 +105,13 @@ def summarize(
     if metric not in ("auto", *METRICS):
         raise ValueError(f"metric must be 'auto' or one of {METRICS}, got {metric!r}")
     metric_choice = metric
-    finished, failed = [], []
+    finished, failed, wall_times = [], [], []
     for spec in specs:
         run_dir = output / "runs" / spec.relative_dir
         record = read_run_record(run_dir)
         if record is not None and record["status"] == "finished":
             finished.append((spec.env_id, spec.method, spec.seed, run_dir / EVALUATIONS_FILE))
+            wall_times.append(float(record["wall_time_s"]))
         else:
             error = "never ran (interrupted?)" if record is None else record.get("error", "")
             failed.append((spec, error, run_dir / LOG_FILE))
@@ -133,7 +136,7 @@ def summarize(
     scores_table = _in_order(pd.concat(scores, ignore_index=True), order) if scores else pd.DataFrame()
     summary = _in_order(pd.concat(summaries, ignore_index=True), order) if summaries else pd.DataFrame()
     table = format_table(summary, metrics) if len(summary) else "(no finished runs)"
-    return Summary(curves, scores_table, summary, metrics, failed, table)
+    return Summary(curves, scores_table, summary, metrics, failed, table, wall_times)
 
 
 def _in_order(table: pd.DataFrame, order: dict[tuple[str, str], int]) -> pd.DataFrame:
@@ -149,7 +152,7 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
 
     :param output: comparison folder.
     :param summary: from :func:`summarize`.
-    :param title: report and figure title.
+    :param title: report title.
     :param settings_md: Markdown describing the settings (methods, configs, budgets).
     :param wall_time_s: wall time of this invocation.
     """
@@ -167,7 +170,8 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
                 for env_id, group in summary.curves.groupby("env", sort=False)
             ]
         )
-        plot_learning_curves(aggregated, summary.metrics, path=output / "curves.png", title=title)
+        # the figure gets a short title (the report's may be a sentence); panels are titled by env
+        plot_learning_curves(aggregated, summary.metrics, path=output / "curves.png", title=" vs ".join(methods))
         figure_md = "![learning curves](curves.png)\n" + _memory_choice_figures(output, summary)
     lines = [
         f"# {title}",
@@ -194,7 +198,13 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
             last = error.strip().splitlines()[-1] if error.strip() else "unknown error"
             lines.append(f"- {spec.env_id} / {spec.method} / seed {spec.seed}: `{last}` (log: `{log}`)")
         lines.append("")
-    lines.append(f"Wall time of this invocation: {wall_time_s:.0f} s.")
+    if summary.run_wall_times:
+        times = pd.Series(summary.run_wall_times)
+        lines.append(
+            f"Runs: {len(times)} finished, {times.median():.0f} s median wall time per run (sum {times.sum():.0f} s, "
+            "imports excluded)."
+        )
+    lines.append(f"Wall time of this invocation (resumed runs cost nothing): {wall_time_s:.0f} s.")
     atomic_write_text(output / "report.md", "\n".join(lines) + "\n")
 
 
