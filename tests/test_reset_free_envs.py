@@ -487,3 +487,18 @@ def test_sac_her_runs_on_each_env(env_id):
     batch = model.replay_buffer.sample(32)
     assert set(np.unique(batch.rewards.numpy())) <= {-1.0, 0.0, 1.0}
     env.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_goal_box_contains_task_goals_and_visited_goals(envs, env_id):
+    task = RESET_FREE_TASKS[env_id]
+    env = get_env(envs, env_id)
+    low, high = np.asarray(task.goal_low), np.asarray(task.goal_high)
+    assert low.shape == high.shape == env.observation_space["achieved_goal"].shape
+    for sampler in (env.unwrapped.sample_initial_goal, env.unwrapped.sample_evaluation_goal):
+        goals = _samples(sampler, 100)
+        assert np.all(goals >= low) and np.all(goals <= high)
+    obs, _ = env.reset(seed=0)
+    for _ in range(30):
+        obs, *_ = env.step(env.action_space.sample())
+        assert np.all(obs["achieved_goal"] >= low) and np.all(obs["achieved_goal"] <= high)

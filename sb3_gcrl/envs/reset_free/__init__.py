@@ -38,6 +38,9 @@ class ResetFreeTask:
     :param eval_horizon: steps of an episodic evaluation episode (also the registered ``max_episode_steps``).
     :param hard_reset_every: physical reset interval of reset-free training (EARL/IBC/thesis).
     :param source: where the task comes from.
+    :param goal_low: lower corner of the reachable goal-space box (for binned visited-goal schedulers such as
+        the novelty scheduler's ``goal_low``, and for visitation heatmaps).
+    :param goal_high: upper corner of that box.
     """
 
     env_id: str
@@ -45,6 +48,8 @@ class ResetFreeTask:
     eval_horizon: int
     hard_reset_every: int
     source: str
+    goal_low: tuple[float, ...]
+    goal_high: tuple[float, ...]
 
 
 _FETCH = "sb3_gcrl.envs.reset_free.fetch"
@@ -58,6 +63,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             fetch.EVAL_HORIZON,
             fetch.HARD_RESET_EVERY,
             "IBC ergodic Fetch Push",
+            fetch.IBC_PUSH_GOAL_LOW,
+            fetch.IBC_PUSH_GOAL_HIGH,
         ),
         ResetFreeTask(
             "GCRL/ResetFreeFetchPickAndPlace-v0",
@@ -65,6 +72,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             fetch.EVAL_HORIZON,
             fetch.HARD_RESET_EVERY,
             "IBC ergodic Fetch Pick&Place",
+            fetch.IBC_PICK_AND_PLACE_GOAL_LOW,
+            fetch.IBC_PICK_AND_PLACE_GOAL_HIGH,
         ),
         ResetFreeTask(
             "GCRL/ResetFreeFetchPushHard-v0",
@@ -72,6 +81,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             fetch.EVAL_HORIZON,
             fetch.HARD_RESET_EVERY,
             "thesis Push (hard)",
+            fetch.HARD_GOAL_LOW,
+            fetch.HARD_GOAL_HIGH,
         ),
         ResetFreeTask(
             "GCRL/ResetFreeFetchPickAndPlaceHard-v0",
@@ -79,6 +90,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             fetch.EVAL_HORIZON,
             fetch.HARD_RESET_EVERY,
             "thesis Pick&Place (hard)",
+            fetch.HARD_GOAL_LOW,
+            fetch.HARD_GOAL_HIGH,
         ),
         ResetFreeTask(
             "GCRL/ResetFreeAntArena-v0",
@@ -86,6 +99,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             ant.EVAL_HORIZON,
             ant.HARD_RESET_EVERY,
             "thesis Ant (PEG AntMaze, square arena)",
+            ant.GOAL_LOW,
+            ant.GOAL_HIGH,
         ),
         ResetFreeTask(
             "GCRL/Tabletop-v0",
@@ -93,6 +108,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             tabletop.EVAL_HORIZON,
             tabletop.HARD_RESET_EVERY,
             "EARL Tabletop",
+            tabletop.GOAL_LOW,
+            tabletop.GOAL_HIGH,
         ),
         ResetFreeTask(
             "GCRL/SawyerDoor-v0",
@@ -100,6 +117,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             sawyer_door.EVAL_HORIZON,
             sawyer_door.HARD_RESET_EVERY,
             "EARL Sawyer Door (metaworld)",
+            sawyer_door.GOAL_LOW,
+            sawyer_door.GOAL_HIGH,
         ),
     )
 }

@@ -43,6 +43,8 @@ ARENA_MAP = [
     [1, 1, 1, 1],
 ]
 ARENA_HALF_SIZE = 4.0
+#: Goal-space box (torso xy), for binning visited goals and heatmaps.
+GOAL_LOW, GOAL_HIGH = (-ARENA_HALF_SIZE, -ARENA_HALF_SIZE), (ARENA_HALF_SIZE, ARENA_HALF_SIZE)
 #: rho_0: start at the centre with uniform noise of this half-width (thesis: U(-0.1, 0.1)).
 START_NOISE = 0.1
 #: rho_g*: uniform over [low, high]^2 (thesis: U(2, 3) for both x and y).

@@ -80,6 +80,11 @@ HARD_OBJECT_START = (1.30, 0.75)
 HARD_AIR_GOAL_HALF_XY = 0.025
 HARD_AIR_GOAL_HEIGHT = (0.10, 0.20)
 
+#: Goal-space boxes (block centre xyz reachable inside the walls), for binning visited goals and heatmaps.
+IBC_PUSH_GOAL_LOW, IBC_PUSH_GOAL_HIGH = (1.165, 0.575, 0.40), (1.515, 0.925, 0.50)
+IBC_PICK_AND_PLACE_GOAL_LOW, IBC_PICK_AND_PLACE_GOAL_HIGH = (1.165, 0.575, 0.40), (1.515, 0.925, 0.95)
+HARD_GOAL_LOW, HARD_GOAL_HIGH = (1.075, 0.425, 0.40), (1.525, 1.075, 0.80)
+
 _WALL_HALF_THICKNESS = 0.02
 _BLOCK_HALF_SIZE = 0.025
 # How far (metres) the block centre may press into a wall before the position clamp takes over.
@@ -129,7 +134,9 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
             "robot0:slide0": 0.405,
             "robot0:slide1": 0.48,
             "robot0:slide2": 0.0,
-            "object0:joint": [1.25, 0.53, 0.4, 1.0, 0.0, 0.0, 0.0],
+            # Fetch parks the block at (1.25, 0.53) during setup, which is inside the IBC box's wall; park it at
+            # the table centre instead (setup measures the block's resting height there).
+            "object0:joint": [HARD_OBJECT_START[0], HARD_OBJECT_START[1], 0.4, 1.0, 0.0, 0.0, 0.0],
         }
         super().__init__(
             model_path=model_path,
@@ -146,6 +153,8 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
             reward_type=reward_type,
             **kwargs,
         )
+        if not TABLE_TOP_Z < self.height_offset < TABLE_TOP_Z + 0.03:
+            raise RuntimeError(f"block resting height {self.height_offset:.3f} is not on the table: setup failed")
         self._mocap_low = None if self.gripper_low is None else np.asarray(self.gripper_low, dtype=np.float64)
         self._mocap_high = None if self.gripper_high is None else np.asarray(self.gripper_high, dtype=np.float64)
         # Bounds of the block centre (xy) used by the clamp in _step_callback: the walls' inner faces minus the

@@ -43,6 +43,8 @@ DOOR_POSITION = np.array([0.1, 0.95, 0.15])
 DOOR_START_ANGLE = -np.pi / 3
 DOOR_START_NOISE = np.pi / 20
 DOOR_CLOSED_ANGLE = 0.0
+#: Goal-space box: the handle's path over the hinge range [-2, 0] rad (it moves in the plane z = 0.150).
+GOAL_LOW, GOAL_HIGH = (-0.35, 0.45, 0.14), (0.30, 0.75, 0.16)
 
 METAWORLD_INSTALL = "pip install --no-deps metaworld==3.0.0"
 

@@ -42,6 +42,8 @@ SUCCESS_THRESHOLD = 0.2
 TABLE_HALF_SIZE = 2.8
 MAX_STEP = 0.2
 GRASP_RADIUS = 0.4
+#: Goal-space box (fist xy, mug xy), for binning visited goals and heatmaps.
+GOAL_LOW, GOAL_HIGH = (-TABLE_HALF_SIZE,) * 4, (TABLE_HALF_SIZE,) * 4
 #: rho_0 in goal space: fist xy, mug xy.
 INITIAL_GOAL = np.array([0.0, 0.0, 2.5, 0.0])
 #: rho_g*: EARL's four evaluation goals (fist back at the centre, mug at one of four targets).
