@@ -109,7 +109,9 @@ def test_bad_hyperparameters_raise() -> None:
     with pytest.raises(ValueError, match="eval_horizon"):
         GoExploreWrapper(LineGoalEnv(), "env_default")
     with pytest.raises(ValueError, match="goal_low and goal_high"):
-        GoalCommandWrapper(LineGoalEnv(), "novelty")
+        GoalCommandWrapper(gym.make("PointMaze_UMaze-v3"), "novelty")  # unbounded achieved_goal space
+    bounded = GoalCommandWrapper(LineGoalEnv(), "novelty")  # bounds taken from the achieved_goal space
+    np.testing.assert_array_equal(bounded.scheduler.goal_space.low, [-10.0])
     with pytest.raises(ValueError, match="Unknown goal scheduler 'peg'"):
         GoalCommandWrapper(LineGoalEnv(), "peg")
     with pytest.raises(ValueError, match="explore_policy"):

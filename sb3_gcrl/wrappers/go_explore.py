@@ -21,6 +21,7 @@ from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
+from gymnasium import spaces
 
 from sb3_gcrl.goals.schedulers import GoalScheduler
 from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
@@ -48,6 +49,9 @@ class GoExploreWrapper(GoalCommandWrapper):
     :param success_distance: see :class:`GoalCommandWrapper`.
     :param task_goal_capacity: see :class:`GoalCommandWrapper`.
     """
+
+    #: random exploration actions drawn per block
+    RANDOM_BLOCK = 1024
 
     def __init__(
         self,
@@ -99,15 +103,30 @@ class GoExploreWrapper(GoalCommandWrapper):
         self._obs: dict[str, np.ndarray] | None = None
         #: steps spent in each phase (reset-free mode)
         self.phase_steps_total = {"go": 0, "explore": 0}
+        self._random_block: np.ndarray | None = None
+        self._random_pos = 0
 
     def _random_action(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
-        return self.action_space.sample()
+        # uniform actions drawn in blocks from the wrapper's seeded generator (Box.sample costs ~20 us per call)
+        space = self.action_space
+        if self._random_block is None or self._random_pos == len(self._random_block):
+            if isinstance(space, spaces.Box) and space.is_bounded():
+                self._random_block = rng.uniform(space.low, space.high, (self.RANDOM_BLOCK, *space.shape))
+                self._random_block = self._random_block.astype(space.dtype)
+            elif isinstance(space, spaces.Discrete):
+                self._random_block = space.start + rng.integers(0, space.n, self.RANDOM_BLOCK, dtype=space.dtype)
+            else:
+                return space.sample()
+            self._random_pos = 0
+        self._random_pos += 1
+        return self._random_block[self._random_pos - 1].copy()
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         if seed is not None:
             self.action_space.seed(seed)
+            self._random_block = None
         obs, info = super().reset(seed=seed, options=options)
         self.phase, self._phase_steps, self._obs = "go", 0, obs
         return obs, info

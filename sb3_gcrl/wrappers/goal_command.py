@@ -36,7 +36,8 @@ class GoalCommandWrapper(
         :func:`~sb3_gcrl.goals.make_scheduler` (``env_default``, ``evaluation``, ``uniform_visited``,
         ``novelty``, ``back_and_forth``).
     :param scheduler_kwargs: keyword arguments of :func:`~sb3_gcrl.goals.make_scheduler` when ``scheduler`` is a
-        name (e.g. ``{"alpha": 0.2, "exploratory": "novelty", "goal_low": [-2, -2], "goal_high": [2, 2]}``).
+        name (e.g. ``{"alpha": 0.2, "exploratory": "novelty", "goal_low": [-2, -2], "goal_high": [2, 2]}``);
+        ``goal_low``/``goal_high`` default to the bounds of a bounded ``achieved_goal`` space.
     :param success_distance: success means ``||achieved_goal - goal|| <= success_distance``; ``None`` means the
         reward for the commanded goal equals the reward the env gives at the goal itself (exact for sparse
         rewards, e.g. PointMaze's 0/1 and Fetch's -1/0; pass a distance for dense rewards).
@@ -67,7 +68,12 @@ class GoalCommandWrapper(
                 raise ValueError("scheduler_kwargs only apply when scheduler is given by name")
             self.scheduler = scheduler
         else:
-            self.scheduler = make_scheduler(scheduler, self.task_goals, **(scheduler_kwargs or {}))
+            kwargs = dict(scheduler_kwargs or {})
+            achieved_space = env.observation_space["achieved_goal"]
+            if "goal_low" not in kwargs and "goal_high" not in kwargs and achieved_space.is_bounded():
+                # bins over the achieved-goal space when it is bounded (e.g. GCRL/PointUMazeGoal-v0)
+                kwargs["goal_low"], kwargs["goal_high"] = achieved_space.low.tolist(), achieved_space.high.tolist()
+            self.scheduler = make_scheduler(scheduler, self.task_goals, **kwargs)
         if success_distance is not None and not success_distance > 0:
             raise ValueError(f"success_distance must be > 0, got {success_distance}")
         self.success_distance = success_distance
