@@ -75,17 +75,20 @@ class MFECTable:
         return True
 
     def estimate(self, keys: np.ndarray) -> np.ndarray:
-        """``Q_ec(s, a)`` for a batch of float32 keys ``(n, key_dim)`` -> ``(n,)``."""
-        n = len(keys)
-        if len(self) <= self.n_neighbors:
-            out = np.full(n, np.inf)
-        else:
-            _, rows = self.index.search(keys, self.n_neighbors)
-            out = self.values[rows].mean(axis=1)
-        for i in range(n):  # exact matches override the kNN mean
-            row = self._row_of.get(keys[i].tobytes(), -1)
-            if row >= 0:
-                out[i] = self.values[row]
+        """``Q_ec(s, a)`` for a batch of float32 keys ``(n, key_dim)`` -> ``(n,)``.
+
+        Exact matches are answered from the hash map; only the other keys are searched.
+        """
+        rows = np.fromiter((self._row_of.get(key.tobytes(), -1) for key in keys), dtype=np.int64, count=len(keys))
+        out = self.values[rows]  # exact matches (garbage where rows == -1, overwritten below)
+        missing = rows < 0
+        if missing.any():
+            if len(self) <= self.n_neighbors:
+                out[missing] = np.inf
+            else:
+                query = keys if missing.all() else keys[missing]
+                _, neighbours = self.index.search(query, self.n_neighbors)
+                out[missing] = self.values[neighbours].mean(axis=1)
         return out
 
     def state_dict(self) -> dict[str, Any]:
