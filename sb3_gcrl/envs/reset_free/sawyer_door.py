@@ -1,9 +1,9 @@
 """Sawyer Door: EARL's door-closing task (thesis Section 3.7.1 "Sawyer Door"; Sharma et al. 2021, EARL) as a
 goal environment on metaworld 3.0.0's ``door-close-v3`` scene.
 
-Optional dependency: ``pip install --no-deps metaworld==3.0.0`` (``--no-deps``: metaworld pins an older mujoco;
-3.0.0 runs with our mujoco 3.11 and gymnasium 1.4). Without it, making the env raises an ImportError that names
-that command.
+Optional dependency: ``pip install metaworld==3.0.0``. Its requirements (gymnasium>=1.1, mujoco>=3.0, numpy,
+scipy, imageio) are met by our stack, so nothing else changes; metaworld >= 3.1 pins mujoco 3.3 (not ours). Without
+it, making the env raises an ImportError that names that command.
 
 EARL's task, kept: a Sawyer arm (mocap xyz control, action Box(-1, 1, (4,)) = xyz displacement x 1 cm +
 gripper) must close a door that starts open. Arm start (0, 0.4, 0.2); door start angle -pi/3 + U(0, pi/20)
@@ -46,7 +46,7 @@ DOOR_CLOSED_ANGLE = 0.0
 #: Goal-space box: the handle's path over the hinge range [-2, 0] rad (it moves in the plane z = 0.150).
 GOAL_LOW, GOAL_HIGH = (-0.35, 0.45, 0.14), (0.30, 0.75, 0.16)
 
-METAWORLD_INSTALL = "pip install --no-deps metaworld==3.0.0"
+METAWORLD_INSTALL = "pip install metaworld==3.0.0"
 
 
 class SawyerDoorEnv(GoalEnv):
@@ -67,7 +67,7 @@ class SawyerDoorEnv(GoalEnv):
         except ImportError as error:
             raise ImportError(
                 f"GCRL/SawyerDoor-v0 needs metaworld 3.0.0, which is not installed. Install it with "
-                f"`{METAWORLD_INSTALL}` (--no-deps: its pinned mujoco is older than ours and not needed)."
+                f"`{METAWORLD_INSTALL}` (later metaworld releases pin an older mujoco than ours)."
             ) from error
         self.render_mode = render_mode
         sim = SawyerDoorCloseEnvV3(render_mode=render_mode, width=width, height=height)
