@@ -87,7 +87,7 @@ def _print_methods(config_dir: Path) -> None:
     from sb3_gcrl.compare.methods import available_algorithms, config_env_ids
     from sb3_gcrl.compare.run import prepare_process
 
-    prepare_process()
+    prepare_process(single_thread=False)
     print("algorithms:", " ".join(available_algorithms()))
     print(f"zoo configs in {config_dir}:")
     for config in sorted(config_dir.glob("*.yml")):

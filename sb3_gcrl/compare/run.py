@@ -90,14 +90,16 @@ class RunResult:
     log: str = ""
 
 
-def prepare_process(gym_packages: tuple[str, ...] = ()) -> None:
-    """Set up a worker process: one torch thread, our envs and algorithms registered, extra gym packages.
+def prepare_process(gym_packages: tuple[str, ...] = (), single_thread: bool = True) -> None:
+    """Set up a process: our envs and algorithms registered, extra gym packages imported, one torch thread.
 
     :param gym_packages: modules to import (they register their envs on import).
+    :param single_thread: limit torch to one thread (workers; the parent of a comparison keeps its setting).
     """
-    import torch
+    if single_thread:
+        import torch
 
-    torch.set_num_threads(1)
+        torch.set_num_threads(1)
     import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
     from sb3_gcrl.cli import register_zoo_algorithms
 

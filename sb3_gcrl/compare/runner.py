@@ -238,7 +238,7 @@ def compare(
     if metric not in ("auto", "success_rate", "mean_return"):
         raise ValueError(f"metric must be 'auto', 'success_rate' or 'mean_return', got {metric!r}")
     config_dir = Path(config_dir)
-    prepare_process(tuple(gym_packages))  # registers envs and algorithms here too, for the checks below
+    prepare_process(tuple(gym_packages), single_thread=False)  # registers envs and algorithms for the checks
     parsed = [m if isinstance(m, Method) else parse_method(m, config_dir) for m in methods]
     labels = [m.label for m in parsed]
     if len(set(labels)) != len(labels):
