@@ -317,3 +317,23 @@ def test_is_success_adapter() -> None:
     env.reset(seed=0)
     with pytest.raises(KeyError, match="success_distance"):
         env.step(env.action_space.sample())
+
+
+def test_eval_horizon_sets_the_inner_time_limit_seen_by_monitor() -> None:
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.evaluation import evaluate_policy
+    from stable_baselines3.common.monitor import Monitor
+
+    def wrap(env: gym.Env) -> gym.Env:
+        return ResetFreeWrapper(env, eval_horizon=25)
+
+    env = make_vec_env(UMAZE_GOAL, n_envs=1, seed=0, wrapper_class=wrap)  # Monitor sits below the wrapper
+
+    class RandomAgent:
+        def predict(self, obs, state=None, episode_start=None, deterministic=True):
+            return np.zeros((1, 2), dtype=np.float32), None
+
+    _, lengths = evaluate_policy(RandomAgent(), env, n_eval_episodes=2, return_episode_rewards=True)
+    assert lengths == [25, 25]
+    with pytest.raises(ValueError, match="needs a TimeLimit inside the Monitor"):
+        ResetFreeWrapper(Monitor(LineGoalEnv()), eval_horizon=10)

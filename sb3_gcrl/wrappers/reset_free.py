@@ -71,19 +71,36 @@ class ResetFreeWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._needs_physical_reset = True
         self._last_obs: Any = None
         self._last_info: dict[str, Any] = {}
+        # Inner time limits end the physical episodes, which is what SB3's Monitor (placed below the env_wrapper
+        # by make_vec_env / RL-Zoo) records and what evaluate_policy counts: they are set to eval_horizon in
+        # episodic mode and to hard_reset_every in reset-free mode.
+        self._time_limits: list[TimeLimit] = []
+        inner = self.env
+        has_monitor = False
+        while isinstance(inner, gym.Wrapper):
+            if isinstance(inner, TimeLimit):
+                self._time_limits.append(inner)
+            has_monitor = has_monitor or type(inner).__name__ == "Monitor"
+            inner = inner.env
+        if self.eval_horizon is not None:
+            if not self._time_limits and has_monitor:
+                raise ValueError(
+                    "ResetFreeWrapper(eval_horizon=...) needs a TimeLimit inside the Monitor so that evaluation "
+                    "episodes end where Monitor/evaluate_policy see them: register the env with max_episode_steps "
+                    "(or wrap it in gymnasium.wrappers.TimeLimit before Monitor)"
+                )
+            for limit in self._time_limits:
+                limit._max_episode_steps = self.eval_horizon
 
     def enable_reset_free(self) -> None:
-        """Switch to reset-free mode (training env only) and lift inner time limits to ``hard_reset_every``.
+        """Switch to reset-free mode (training env only) and set inner time limits to ``hard_reset_every``.
 
         Inner ``TimeLimit`` wrappers (e.g. PointMaze's 300 steps) would otherwise end the physical episode early;
         their limit becomes the hard-reset interval so that they coincide with the hard reset.
         """
         self.mode = "reset_free"
-        env = self.env
-        while isinstance(env, gym.Wrapper):
-            if isinstance(env, TimeLimit):
-                env._max_episode_steps = max(env._max_episode_steps, self.hard_reset_every)
-            env = env.env
+        for limit in self._time_limits:
+            limit._max_episode_steps = self.hard_reset_every
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         if self.mode == "episodic" or self._needs_physical_reset or seed is not None or options:

@@ -1,0 +1,61 @@
+"""The reset-free configs under RL-Zoo (issue 3, item 9): evaluation stays episodic, every config runs."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIGS = sorted((REPO / "zoo_configs").glob("reset_free_pointumaze_*.yml"))
+ENV_ID = "GCRL/PointUMazeGoal-v0"
+# tiny budget: small nets, updates start early, evaluation after 300 and 600 steps
+FAST = ["learning_starts:100", "batch_size:32", "policy_kwargs:dict(net_arch=[16])"]
+
+
+def zoo_train(config: Path, folder: Path, steps: int, eval_freq: int) -> Path:
+    """Run ``python -m rl_zoo3.train`` (what ``sb3-gcrl train`` wraps) with a tiny budget; return the run folder."""
+    cmd = [
+        sys.executable, "-m", "rl_zoo3.train", "--algo", "sac", "--env", ENV_ID, "-conf", str(config),
+        "--gym-packages", "sb3_gcrl", "-n", str(steps), "--eval-freq", str(eval_freq), "--eval-episodes", "1",
+        "--seed", "0", "--num-threads", "1", "-f", str(folder), "-params", *FAST,
+    ]  # fmt: skip
+    result = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=900)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    runs = sorted(folder.glob(f"sac/{ENV_ID.replace('/', '-')}_*"))
+    assert runs, result.stdout[-2000:]
+    return runs[-1]
+
+
+def test_configs_cover_the_methods_of_the_issue() -> None:
+    names = {path.stem.removeprefix("reset_free_pointumaze_") for path in CONFIGS}
+    assert {"oracle", "naive", "goexplore", "morefree", "wo_bf", "wo_relabel", "alpha1"} <= names
+    morefree = yaml.safe_load((REPO / "zoo_configs" / "reset_free_pointumaze_morefree.yml").read_text())[ENV_ID]
+    assert "TaskRelevantHerReplayBuffer" in morefree["replay_buffer_class"]
+    assert "task_goal_ratio=0.2" in morefree["replay_buffer_kwargs"]
+    wrapper = morefree["env_wrapper"][1]["sb3_gcrl.wrappers.GoExploreWrapper"]
+    assert wrapper["scheduler"] == "back_and_forth" and wrapper["scheduler_kwargs"]["alpha"] == 0.2
+
+
+def test_zoo_evaluation_is_episodic_while_training_is_reset_free(tmp_path: Path) -> None:
+    run = zoo_train(REPO / "zoo_configs" / "reset_free_pointumaze_morefree.yml", tmp_path, steps=600, eval_freq=300)
+    evaluations = np.load(run / "evaluations.npz")
+    assert list(evaluations["timesteps"]) == [300, 600]
+    # the eval env got the same env_wrapper, yet its episodes are T_eval long (no Go/Explore segment ends)
+    assert np.all(evaluations["ep_lengths"] == 300)
+    # the training env's Monitor records physical episodes: none ended (no reset in 600 reset-free steps)
+    monitor_rows = (run / "0.monitor.csv").read_text().strip().splitlines()
+    assert len(monitor_rows) == 2  # the two header lines only
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("config", CONFIGS, ids=[path.stem for path in CONFIGS])
+def test_every_config_trains_briefly(config: Path, tmp_path: Path) -> None:
+    run = zoo_train(config, tmp_path, steps=1200, eval_freq=600)
+    evaluations = np.load(run / "evaluations.npz")
+    assert np.all(evaluations["ep_lengths"] == 300)
+    assert (run / f"{ENV_ID.replace('/', '-')}.zip").exists()
