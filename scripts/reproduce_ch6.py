@@ -190,7 +190,8 @@ def run_one(task: str, variant: str, seed: int, epsilon: float, steps: int, eval
 
 
 def summarise(runs: list[dict]) -> str:
-    """Markdown table: final all-goals success / entropy / coverage per task and variant (median, mean +- se)."""
+    """Markdown tables: final all-goals success / entropy / coverage per task and variant (median, mean +- se),
+    paired differences (same seed and epsilon) between variants, and a per-epsilon breakdown."""
     lines = [
         "| task | variant | runs | success all goals: median | mean +- se | AUC (mean over evals) | "
         "entropy (nats) median | coverage median | post-expl. steps median |",
@@ -209,6 +210,30 @@ def summarise(runs: list[dict]) -> str:
                 f"{auc.mean():.3f} | {np.median([r['entropy'] for r in sel]):.3f} | "
                 f"{np.median([r['coverage'] for r in sel]):.3f} | "
                 f"{np.median([r['post_exploration_steps'] for r in sel]):.0f} |"
+            )
+    lines += [
+        "",
+        "| task | comparison | pairs | AUC diff median | AUC wins | final diff median | entropy diff median | "
+        "entropy wins |",
+    ]
+    lines.append("|---|---|---|---|---|---|---|---|")
+    for task in dict.fromkeys(r["task"] for r in runs):
+        by_key = {(r["variant"], r["seed"], r["epsilon"]): r for r in runs if r["task"] == task}
+        for variant, reference in (("on", "off"), ("adaptive", "off"), ("adaptive", "on")):
+            pairs = [
+                (run, by_key[(reference, seed, eps)])
+                for (v, seed, eps), run in by_key.items()
+                if v == variant and (reference, seed, eps) in by_key
+            ]
+            if not pairs:
+                continue
+            d_auc = np.array([np.mean(a["success"]) - np.mean(b["success"]) for a, b in pairs])
+            d_final = np.array([a["success"][-1] - b["success"][-1] for a, b in pairs])
+            d_ent = np.array([a["entropy"] - b["entropy"] for a, b in pairs])
+            lines.append(
+                f"| {task} | {variant} - {reference} | {len(pairs)} | {np.median(d_auc):+.3f} | "
+                f"{int((d_auc > 0).sum())}/{len(pairs)} | {np.median(d_final):+.3f} | {np.median(d_ent):+.3f} | "
+                f"{int((d_ent > 0).sum())}/{len(pairs)} |"
             )
     epsilons = sorted({r["epsilon"] for r in runs})
     if len(epsilons) > 1:
