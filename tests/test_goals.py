@@ -179,3 +179,13 @@ def test_make_scheduler_errors_list_the_choices() -> None:
         "back_and_forth", FixedTaskGoals(), [-1.0], [1.0], alpha=0.2, exploratory="uniform_visited"
     )
     assert isinstance(scheduler, BackAndForthScheduler) and scheduler.alpha == 0.2
+
+
+def test_recorded_goals_are_visible_in_counts_before_a_block_fills() -> None:
+    space = BinnedGoalSpace([0.0], [1.0], n_bins=2)
+    for x in (0.1, 0.2, 0.9):
+        space.record(np.array([x]))
+    np.testing.assert_array_equal(space.counts, [2, 1])  # reading counts bins the buffered goals
+    for _ in range(3000):  # more than one block
+        space.record(np.array([0.7]))
+    assert space.counts[1] == 3001 and space.n_visited == 2

@@ -63,13 +63,35 @@ class BinnedGoalSpace:
         self.bin_width = (self.high - self.low) / bins
         # row-major strides to flatten a multi-index
         self._strides = np.cumprod(np.concatenate([bins[1:], [1]])[::-1])[::-1].astype(np.int64)
-        self.counts = np.zeros(n_cells, dtype=np.int64)
+        self._counts = np.zeros(n_cells, dtype=np.int64)
         self._representative = np.zeros((n_cells, self.dim), dtype=np.float64)
+        # goals recorded one at a time are binned per block (one row copy per env step on the hot path)
+        self._pending = np.empty((1024, self.dim), dtype=np.float64)
+        self._n_pending = 0
+
+    @property
+    def counts(self) -> np.ndarray:
+        """Visit count n(g) of every bin (flattened), including goals recorded with :meth:`record`."""
+        self.flush()
+        return self._counts
+
+    def record(self, goal: np.ndarray) -> None:
+        """Record one achieved goal (buffered; binned with the next block or when counts are read)."""
+        self._pending[self._n_pending] = goal
+        self._n_pending += 1
+        if self._n_pending == len(self._pending):
+            self.flush()
+
+    def flush(self) -> None:
+        """Bin the goals buffered by :meth:`record`."""
+        if self._n_pending:
+            n, self._n_pending = self._n_pending, 0
+            self.add(self._pending[:n])
 
     @property
     def n_cells(self) -> int:
         """Total number of bins."""
-        return self.counts.shape[0]
+        return self._counts.shape[0]
 
     @property
     def n_visited(self) -> int:
@@ -94,10 +116,10 @@ class BinnedGoalSpace:
         goals = np.asarray(goals, dtype=np.float64)
         idx = self.bin_index(goals)
         if goals.ndim == 1:
-            self.counts[idx] += 1
+            self._counts[idx] += 1
             self._representative[idx] = goals
         else:
-            np.add.at(self.counts, idx, 1)
+            np.add.at(self._counts, idx, 1)
             self._representative[idx] = goals
 
     def bin_center(self, idx: np.ndarray) -> np.ndarray:

@@ -78,34 +78,20 @@ class EvaluationGoalScheduler(GoalScheduler):
 class UniformVisitedScheduler(GoalScheduler):
     """Uniform over visited bins of the goal space (each achieved goal is recorded).
 
-    Achieved goals are copied into a preallocated block and binned in one vectorised call when a goal is asked
-    for (or the block is full), which keeps the per-step cost to one row copy.
+    Achieved goals are recorded with :meth:`BinnedGoalSpace.record` (binned per block, one row copy per step).
 
     :param goal_space: the binned visited-goal space (shared objects are fine, e.g. with a logger).
-    :param block_size: achieved goals buffered before they are binned.
     """
 
     kind = "explore"
 
-    def __init__(self, goal_space: BinnedGoalSpace, block_size: int = 1024) -> None:
+    def __init__(self, goal_space: BinnedGoalSpace) -> None:
         self.goal_space = goal_space
-        self._pending = np.empty((block_size, goal_space.dim), dtype=np.float64)
-        self._n_pending = 0
 
     def observe(self, achieved_goal: np.ndarray) -> None:
-        self._pending[self._n_pending] = achieved_goal
-        self._n_pending += 1
-        if self._n_pending == len(self._pending):
-            self.flush()
-
-    def flush(self) -> None:
-        """Bin the buffered achieved goals into the goal space (called before every sampling)."""
-        if self._n_pending:
-            self.goal_space.add(self._pending[: self._n_pending])
-            self._n_pending = 0
+        self.goal_space.record(achieved_goal)
 
     def _prepare(self, obs: dict[str, np.ndarray]) -> None:
-        self.flush()
         if self.goal_space.n_visited == 0:
             self.goal_space.add(obs["achieved_goal"])
 
@@ -121,8 +107,8 @@ class NoveltyScheduler(UniformVisitedScheduler):
     :param tau: temperature of Eq. 6.5 (thesis Table 6.3 uses tau in {0, ..., 10}; 1 by default).
     """
 
-    def __init__(self, goal_space: BinnedGoalSpace, tau: float = 1.0, block_size: int = 1024) -> None:
-        super().__init__(goal_space, block_size)
+    def __init__(self, goal_space: BinnedGoalSpace, tau: float = 1.0) -> None:
+        super().__init__(goal_space)
         if not np.isfinite(tau) or tau < 0:
             raise ValueError(f"tau must be a finite number >= 0, got {tau}")
         self.tau = float(tau)
