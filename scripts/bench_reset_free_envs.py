@@ -1,7 +1,7 @@
 """Raw random-action speed of the reset-free task suite (and of the stock envs they are built on).
 
 Each env is stepped without resets (as in reset-free training) with pre-sampled uniform random actions; the
-table shows the median steps/s over ``--repeats`` runs in one process. Usage::
+table shows the median steps/s over ``--repeats`` runs in one process (repeats interleaved over the envs). Usage::
 
     nice -n 10 python scripts/bench_reset_free_envs.py            # all envs, 2000 steps x 3 repeats
     python scripts/bench_reset_free_envs.py --steps 500 --ids GCRL/Tabletop-v0
@@ -100,13 +100,18 @@ def main() -> None:
         targets = [t for t in targets if t[1] != "GCRL/SawyerDoor-v0"]
         print("metaworld not installed: GCRL/SawyerDoor-v0 skipped")
 
+    # Raw envs (no TimeLimit / checker wrappers). Repeats go round-robin over the envs, so that load changes on
+    # a shared machine hit every env alike.
+    envs = {label: gym.make(env_id, **kwargs).unwrapped for label, env_id, kwargs in targets}
+    runs: dict[str, list[float]] = {label: [] for label in envs}
+    for seed in range(args.repeats):
+        for label, env in envs.items():
+            n_steps = args.steps * (10 if "Tabletop" in label else 1)
+            runs[label].append(steps_per_second(env, n_steps, seed))
     print(f"{'env':<42} {'median steps/s':>15} {'runs':>26}")
-    for label, env_id, kwargs in targets:
-        env = gym.make(env_id, **kwargs).unwrapped  # raw env: no TimeLimit / checker wrappers
-        n_steps = args.steps * (10 if "Tabletop" in env_id else 1)
-        runs = [steps_per_second(env, n_steps, seed) for seed in range(args.repeats)]
+    for label, env in envs.items():
         env.close()
-        print(f"{label:<42} {np.median(runs):>15,.0f} {' '.join(f'{r:,.0f}' for r in runs):>26}")
+        print(f"{label:<42} {np.median(runs[label]):>15,.0f} {' '.join(f'{r:,.0f}' for r in runs[label]):>26}")
 
 
 if __name__ == "__main__":

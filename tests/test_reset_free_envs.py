@@ -411,8 +411,8 @@ def test_tabletop_goals_and_scripted_solution():
 
 
 def test_bad_input_raises_clear_errors():
-    with pytest.raises(ValueError, match="render_mode=None"):
-        TabletopEnv(render_mode="rgb_array")
+    with pytest.raises(ValueError, match="renders only 'rgb_array'"):
+        TabletopEnv(render_mode="human")
     env = TabletopEnv()
     env.reset(seed=0)
     with pytest.raises(ValueError, match="non-finite"):
@@ -505,3 +505,13 @@ def test_goal_box_contains_task_goals_and_visited_goals(envs, env_id):
     for _ in range(30):
         obs, *_ = env.step(env.action_space.sample())
         assert np.all(obs["achieved_goal"] >= low) and np.all(obs["achieved_goal"] <= high)
+
+
+def test_tabletop_renders_a_top_view():
+    env = TabletopEnv(render_mode="rgb_array", render_size=112)
+    env.reset(seed=0)
+    image = env.render()
+    assert image.shape == (112, 112, 3) and image.dtype == np.uint8
+    # The mug (2.5, 0) is drawn red at its pixel: column (2.5 + 2.8) / 5.6 * 112 = 106, row 56.
+    np.testing.assert_array_equal(image[56, 106], [200, 40, 40])
+    assert TabletopEnv().render() is None

@@ -21,7 +21,8 @@ rho_0: the fixed start, fist (0, 0), mug (2.5, 0). rho_g*: one of EARL's four go
 at (-2.5, -1), (-2.5, 1), (0, 2) or (0, -2), drawn uniformly ("four goal locations sampled in turn").
 Evaluation horizon 200; hard reset every 2e5 steps (EARL ``train_horizon``).
 
-Departure from EARL: none in the dynamics; no MuJoCo scene, so no rendering.
+Departure from EARL: none in the dynamics. No MuJoCo scene: ``render_mode="rgb_array"`` draws a top view in
+numpy (fist blue, filled while holding; mug red; the mug's goal a green ring; the fist's goal a grey ring).
 """
 
 from __future__ import annotations
@@ -61,17 +62,19 @@ _FREE, _HELD = -1.0, 0.0
 class TabletopEnv(GoalEnv):
     """``GCRL/Tabletop-v0``: EARL's Tabletop (kinematic gripper moving a mug to one of four goals).
 
-    :param render_mode: only ``None`` is supported (the task has no scene to draw).
+    :param render_mode: ``None`` or ``"rgb_array"`` (a top view drawn in numpy).
+    :param render_size: side of the rendered square image in pixels.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": []}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 20}
     EVAL_HORIZON: ClassVar[int] = EVAL_HORIZON
     HARD_RESET_EVERY: ClassVar[int] = HARD_RESET_EVERY
 
-    def __init__(self, render_mode: str | None = None) -> None:
-        if render_mode is not None:
-            raise ValueError(f"Tabletop has no renderer; use render_mode=None (got {render_mode!r})")
+    def __init__(self, render_mode: str | None = None, render_size: int = 200) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"Tabletop renders only 'rgb_array' (or render_mode=None), got {render_mode!r}")
         self.render_mode = render_mode
+        self.render_size = int(render_size)
         bound = np.float32(TABLE_HALF_SIZE)
         goal_box = spaces.Box(-bound, bound, shape=(4,), dtype=np.float32)
         obs_low = np.array([-bound] * 4 + [_FREE] * 2, dtype=np.float32)
@@ -149,3 +152,25 @@ class TabletopEnv(GoalEnv):
         obs = self._get_obs()
         reward = float(self.compute_reward(obs["achieved_goal"], self.goal, None))
         return obs, reward, False, False, {"is_success": reward > 0}
+
+    def render(self) -> np.ndarray | None:
+        """Top view of the table as an (H, W, 3) uint8 image (``render_mode="rgb_array"``), else None."""
+        if self.render_mode != "rgb_array":
+            return None
+        size = self.render_size
+        image = np.full((size, size, 3), 235, dtype=np.uint8)
+        # Pixel grid in table coordinates (x right, y up).
+        coords = (np.arange(size) + 0.5) / size * 2 * TABLE_HALF_SIZE - TABLE_HALF_SIZE
+        x, y = np.meshgrid(coords, coords[::-1])
+
+        def distance(point: np.ndarray) -> np.ndarray:
+            return np.hypot(x - point[0], y - point[1])
+
+        ring = 2.5 * TABLE_HALF_SIZE / size  # ~2.5 px
+        image[np.abs(distance(self.goal[:2]) - SUCCESS_THRESHOLD) < ring] = (150, 150, 150)
+        image[np.abs(distance(self.goal[2:]) - SUCCESS_THRESHOLD) < ring] = (40, 170, 60)
+        mug = self._positions[2:]
+        image[(np.abs(x - mug[0]) < 0.15) & (np.abs(y - mug[1]) < 0.15)] = (200, 40, 40)
+        fist = distance(self._positions[:2])
+        image[(fist < 0.12) if self._held else (np.abs(fist - 0.1) < ring)] = (40, 70, 200)
+        return image
