@@ -374,3 +374,20 @@ def test_every_preset_resolves_to_registered_envs_and_existing_configs(name):
     )  # fmt: skip
     assert len(specs) == len(preset.methods) * len(preset.envs) * len(preset.seeds)
     assert all(Path(spec.config).is_file() for spec in specs)
+
+
+def test_env_kwargs_reach_the_env_constructor(tmp_path):
+    configs = write_configs(tmp_path)
+    method = parse_method(f"sac:{configs['sac']}")
+    spec = plan_runs([method], ["Pendulum-v1"], [0], 200, 100, 1, {}, (), tmp_path, env_kwargs={"no_such_arg": 1})[0]
+    result = execute_run(spec, tmp_path / "run", io.StringIO())
+    assert result.status == "failed" and "no_such_arg" in result.error
+
+
+def test_run_json_of_an_older_version_without_new_fields_still_counts_as_finished(tmp_path):
+    spec = make_spec()
+    write_run_result(tmp_path, RunResult(spec, "finished"))
+    record = json.loads((tmp_path / "run.json").read_text())
+    del record["spec"]["env_kwargs"]  # a field added later, at its default value
+    (tmp_path / "run.json").write_text(json.dumps(record))
+    assert is_finished(tmp_path, spec)

@@ -55,6 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--hyperparams", nargs="+", type=_hyperparam, default=[], metavar="KEY:VALUE",
         help="overrides for every method, values in YAML (learning_starts:100 'policy_kwargs:dict(net_arch=[64])')",
     )  # fmt: skip
+    parser.add_argument(
+        "--env-kwargs", nargs="+", type=_hyperparam, default=[], metavar="KEY:VALUE",
+        help="env constructor arguments for every env, values in YAML (sticky_action_prob:0.2)",
+    )  # fmt: skip
     parser.add_argument("--gym-packages", nargs="+", default=[], help="modules to import (register extra envs)")
     parser.add_argument("--config-dir", type=Path, help="folder of zoo configs for bare method names")
     parser.add_argument("--overwrite", action="store_true", help="redo finished runs whose settings changed")
@@ -143,6 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             n_workers=args.workers,
             ray_address=args.ray_address,
             hyperparams=hyperparams,
+            env_kwargs={**(preset.env_kwargs if preset else {}), **dict(args.env_kwargs)},
             gym_packages=args.gym_packages,
             config_dir=config_dir,
             overwrite=args.overwrite,

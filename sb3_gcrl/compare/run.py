@@ -15,7 +15,7 @@ import math
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -39,6 +39,7 @@ class RunSpec:
     :param eval_freq: env steps between evaluations.
     :param n_eval_episodes: deterministic episodes per evaluation.
     :param hyperparams: overrides applied on top of the config (like ``rl_zoo3 train --hyperparams``).
+    :param env_kwargs: keyword arguments of the env constructor, training and evaluation (``--env-kwargs``).
     :param gym_packages: modules imported before building envs (they register extra envs).
     :param save_model: also save the trained model (``zoo/`` folder of the run).
     """
@@ -53,6 +54,7 @@ class RunSpec:
     eval_freq: int
     n_eval_episodes: int = 5
     hyperparams: dict[str, Any] = field(default_factory=dict)
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
     gym_packages: tuple[str, ...] = ()
     save_model: bool = False
 
@@ -71,6 +73,18 @@ class RunSpec:
         data = asdict(self)
         data["gym_packages"] = list(self.gym_packages)
         return data
+
+    @classmethod
+    def defaults(cls) -> dict[str, Any]:
+        """JSON-friendly default value of every optional field."""
+        values: dict[str, Any] = {}
+        for spec_field in fields(cls):
+            if spec_field.default is not MISSING:
+                values[spec_field.name] = spec_field.default
+            elif spec_field.default_factory is not MISSING:
+                values[spec_field.name] = spec_field.default_factory()
+        values["gym_packages"] = list(values["gym_packages"])
+        return values
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RunSpec:
@@ -117,6 +131,7 @@ def _zoo_args(spec: RunSpec, log_folder: Path) -> argparse.Namespace:
         seed=spec.seed,
         n_timesteps=spec.n_timesteps,
         hyperparams=spec.hyperparams,
+        env_kwargs=spec.env_kwargs,
         gym_packages=list(spec.gym_packages),
         log_folder=str(log_folder),
         eval_freq=-1,
@@ -155,6 +170,7 @@ def execute_run(
                 n_timesteps=spec.n_timesteps,
                 eval_freq=-1,  # replaced by the EvaluationRecorder below
                 hyperparams=dict(spec.hyperparams),
+                env_kwargs=dict(spec.env_kwargs) or None,
                 seed=spec.seed,
                 verbose=0,
                 log_interval=-1,  # rl_zoo3 train's default (0 would mean "log every 0 episodes")

@@ -118,6 +118,7 @@ def plan_runs(
     gym_packages: Sequence[str],
     config_dir: Path,
     save_models: bool = False,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> list[RunSpec]:
     """Every run (env-major, then method, then seed), with its config resolved; raises before anything runs.
 
@@ -141,6 +142,7 @@ def plan_runs(
                     eval_freq=frequency,
                     n_eval_episodes=n_eval_episodes,
                     hyperparams=dict(hyperparams),
+                    env_kwargs=dict(env_kwargs or {}),
                     gym_packages=tuple(gym_packages),
                     save_model=save_models,
                 )
@@ -167,7 +169,7 @@ def _settings_markdown(specs: list[RunSpec], backend: Backend, command: str | No
         f"- seeds: {', '.join(str(s) for s in dict.fromkeys(spec.seed for spec in specs))}",
         f"- budget: {', '.join(f'{b:,}' for b in budgets)} env steps per run; evaluation every "
         f"{', '.join(f'{f:,}' for f in frequencies)} steps, {first.n_eval_episodes} deterministic episodes",
-        f"- hyperparameter overrides: {first.hyperparams or 'none'}",
+        f"- hyperparameter overrides: {first.hyperparams or 'none'}; env kwargs: {first.env_kwargs or 'none'}",
         f"- backend: {type(backend).__name__}",
         "",
     ]
@@ -186,6 +188,7 @@ def compare(
     n_workers: int | None = None,
     ray_address: str | None = None,
     hyperparams: dict[str, Any] | None = None,
+    env_kwargs: dict[str, Any] | None = None,
     gym_packages: Sequence[str] = (),
     config_dir: str | Path = ZOO_CONFIGS_DIR,
     overwrite: bool = False,
@@ -213,6 +216,7 @@ def compare(
     :param n_workers: parallel runs (default: available cores).
     :param ray_address: Ray cluster address (``--backend ray``); default: a local Ray instance.
     :param hyperparams: overrides for every method (as ``rl_zoo3 train --hyperparams``).
+    :param env_kwargs: env constructor keyword arguments for every env (as ``rl_zoo3 train --env-kwargs``).
     :param gym_packages: modules to import in every process (they register extra envs).
     :param config_dir: folder of the zoo configs searched for bare method names.
     :param overwrite: redo finished runs whose settings differ (else that is an error).
@@ -247,7 +251,7 @@ def compare(
         check_env_id(env_id)
     specs = plan_runs(
         parsed, envs, seeds, n_timesteps, eval_freq, n_eval_episodes, hyperparams or {}, gym_packages, config_dir,
-        save_models,
+        save_models, env_kwargs,
     )  # fmt: skip
 
     output = Path(output)

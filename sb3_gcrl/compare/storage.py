@@ -95,8 +95,10 @@ def is_finished(run_dir: Path, spec: RunSpec) -> bool:
     record = read_run_record(run_dir)
     if record is None or record.get("status") != "finished" or not (run_dir / EVALUATIONS_FILE).is_file():
         return False
-    # the config is compared by content digest, not path (an output folder may move with its repository)
-    stored = {key: value for key, value in record.get("spec", {}).items() if key != "config"}
+    # the config is compared by content digest, not path (an output folder may move with its repository);
+    # fields that a run.json of an older version lacks count as their defaults
+    defaults = RunSpec.defaults()
+    stored = {key: value for key, value in {**defaults, **record.get("spec", {})}.items() if key != "config"}
     wanted = {key: value for key, value in spec.to_dict().items() if key != "config"}
     if stored != wanted:
         changed = sorted(key for key in set(stored) | set(wanted) if stored.get(key) != wanted.get(key))
