@@ -1,6 +1,9 @@
 """Speed of the episodic memories (issue 7): query latency, update cost, end-to-end training steps/s.
 
-Prints three tables (single thread: torch, faiss and BLAS pinned to one thread):
+Prints three tables (single thread: torch, faiss and BLAS pinned to one thread). Latencies are CPU
+time of the measuring thread (``time.thread_time_ns``), throughputs are given per wall second and per
+CPU second: on a machine shared with other jobs the CPU figures are the ones that do not depend on the
+load; on an idle machine both agree.
 
 1. CEC memory vs size (1e3 .. 1e6 rows) and key dimension (3, 8, 64): median latency of one
    action-selection query (``select_actions``, k=5) and the cost of one 1000-step episode update
@@ -41,14 +44,25 @@ faiss.omp_set_num_threads(1)
 
 
 def median_us(fn, queries: np.ndarray) -> float:
-    """Median microseconds of ``fn(one_query)`` over the rows of ``queries``."""
+    """Median CPU microseconds of ``fn(one_query)`` over the rows of ``queries``."""
     times = np.empty(len(queries))
     for i in range(len(queries)):
         query = queries[i : i + 1]
-        start = time.perf_counter()
+        start = time.thread_time_ns()
         fn(query)
-        times[i] = time.perf_counter() - start
-    return float(np.median(times) * 1e6)
+        times[i] = time.thread_time_ns() - start
+    return float(np.median(times) / 1e3)
+
+
+class Timer:
+    """Wall-clock and CPU seconds of a block (on a shared machine CPU time is the steadier figure)."""
+
+    def __enter__(self) -> Timer:
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.wall, self.cpu = time.perf_counter() - self.wall, time.process_time() - self.cpu
 
 
 def fill_cec(memory: CECMemory, keys: np.ndarray, rng: np.random.Generator) -> None:
@@ -65,7 +79,7 @@ def fill_cec(memory: CECMemory, keys: np.ndarray, rng: np.random.Generator) -> N
 
 
 def table_cec_memory(sizes: list[int], dims: list[int], queries: int) -> None:
-    print("\n## CEC memory: action selection (median us / query, k=5) and update (ms / 1000-step episode)")
+    print("\n## CEC memory: action selection (median CPU us / query, k=5), update (CPU ms / 1000-step episode)")
     print(f"{'rows':>9} {'dim':>4} {'backend':>8} {'select us':>10} {'update ms':>10} {'build s':>8}")
     rng = np.random.default_rng(0)
     for dim in dims:
@@ -73,18 +87,18 @@ def table_cec_memory(sizes: list[int], dims: list[int], queries: int) -> None:
             memory = CECMemory(dim, 2, capacity=size + 2000, distance_threshold=0.5, n_neighbors=5)
             keys = rng.standard_normal((size, dim)).astype(np.float32)
             fill_cec(memory, keys, rng)
-            q = rng.standard_normal((queries, dim)).astype(np.float32)
-            start = time.perf_counter()
-            memory.select_actions(q[:1], rng)  # first query builds the KD-tree (if any)
-            build = time.perf_counter() - start
+            n_queries = queries if size * dim <= 10_000_000 else queries // 10  # brute force at 1e6 x 64 is slow
+            q = rng.standard_normal((n_queries, dim)).astype(np.float32)
+            with Timer() as build:
+                memory.select_actions(q[:1], rng)  # first query builds the KD-tree (if any)
             select = median_us(partial(memory.select_actions, rng=rng), q)
             # an episode of states near stored rows, 10% of them far away (-> added)
             episode = keys[rng.integers(size, size=1000)] + 0.05 * rng.standard_normal((1000, dim)).astype(np.float32)
             episode[::10] += 10.0
-            start = time.perf_counter()
-            memory.update_episode(episode, rng.uniform(-1, 1, (1000, 2)), rng.random(1000))
-            update_ms = (time.perf_counter() - start) * 1e3
-            print(f"{size:>9} {dim:>4} {memory.index.backend:>8} {select:>10.1f} {update_ms:>10.1f} {build:>8.2f}")
+            with Timer() as update:
+                memory.update_episode(episode, rng.uniform(-1, 1, (1000, 2)), rng.random(1000))
+            backend = memory.index.backend
+            print(f"{size:>9} {dim:>4} {backend:>8} {select:>10.1f} {update.cpu * 1e3:>10.1f} {build.cpu:>8.2f}")
             del memory
 
 
@@ -113,7 +127,7 @@ def jittered(keys: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
 
 def table_mfec_selection(rows_per_action: int, steps: int) -> None:
     print(f"\n## MFEC action selection, {rows_per_action} rows per action, 8-dim keys (median us / env step)")
-    print(f"{'env':>22} {'actions':>7} {'distinct real states':>20} {'act us':>8}")
+    print(f"{'env':>22} {'actions':>7} {'distinct real states':>20} {'act CPU us':>10}")
     rng = np.random.default_rng(0)
     for env_id in ("MinAtar/Breakout-v1", "MinAtar/Seaquest-v1"):
         model = MFEC("MFECPolicy", gym.make(env_id), capacity_per_action=rows_per_action, seed=0)
@@ -133,39 +147,40 @@ def table_mfec_selection(rows_per_action: int, steps: int) -> None:
         policy.act(queries[:1])
         act = median_us(policy.act, queries)
         n_actions = policy.action_space.n
-        print(f"{env_id:>22} {n_actions:>7} {len(np.unique(real, axis=0)):>20} {act:>8.1f}")
+        print(f"{env_id:>22} {n_actions:>7} {len(np.unique(real, axis=0)):>20} {act:>10.1f}")
 
 
-def raw_steps_per_second(env_id: str, n_steps: int) -> float:
+def raw_steps_per_second(env_id: str, n_steps: int) -> tuple[float, float]:
+    """Random-action steps per wall second and per CPU second of the bare env."""
     env = gym.make(env_id)
     env.reset(seed=0)
-    start = time.perf_counter()
-    for _ in range(n_steps):
-        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-        if terminated or truncated:
-            env.reset()
-    return n_steps / (time.perf_counter() - start)
+    with Timer() as timer:
+        for _ in range(n_steps):
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            if terminated or truncated:
+                env.reset()
+    return n_steps / timer.wall, n_steps / timer.cpu
 
 
 def table_end_to_end(rows: int, steps: int) -> None:
-    print(f"\n## End-to-end training (1 env), CEC memory pre-filled with {rows} rows")
-    print(f"{'algo':>5} {'env':>20} {'memory rows':>12} {'train steps/s':>14} {'raw env steps/s':>16}")
+    print(f"\n## End-to-end training (1 env), CEC memory pre-filled with {rows} rows; steps/s per wall | CPU second")
+    print(f"{'algo':>5} {'env':>20} {'memory rows':>12} {'train steps/s':>16} {'raw env steps/s':>16}")
     rng = np.random.default_rng(0)
     env_id = "GCRL/PointUMaze-v0"
     model = CEC("CECPolicy", gym.make(env_id), capacity=1_000_000, seed=0)
     fill_cec(model.policy.memory, jittered(collect_keys(env_id, model.policy.embedding, 20_000), rows, rng), rng)
-    raw = raw_steps_per_second(env_id, steps)
-    start = time.perf_counter()
-    model.learn(steps, log_interval=None)
-    cec_rate = steps / (time.perf_counter() - start)
-    print(f"{'CEC':>5} {env_id:>20} {len(model.policy.memory):>12} {cec_rate:>14.0f} {raw:>16.0f}")
+    raw_wall, raw_cpu = raw_steps_per_second(env_id, steps)
+    with Timer() as timer:
+        model.learn(steps, log_interval=None)
+    train, raw = f"{steps / timer.wall:.0f} | {steps / timer.cpu:.0f}", f"{raw_wall:.0f} | {raw_cpu:.0f}"
+    print(f"{'CEC':>5} {env_id:>20} {len(model.policy.memory):>12} {train:>16} {raw:>16}")
     env_id = "MinAtar/Breakout-v1"
     model = MFEC("MFECPolicy", gym.make(env_id), capacity_per_action=100_000, seed=0)
-    raw = raw_steps_per_second(env_id, steps)
-    start = time.perf_counter()
-    model.learn(steps, log_interval=None)
-    mfec_rate = steps / (time.perf_counter() - start)
-    print(f"{'MFEC':>5} {env_id:>20} {len(model.policy.memory):>12} {mfec_rate:>14.0f} {raw:>16.0f}")
+    raw_wall, raw_cpu = raw_steps_per_second(env_id, steps)
+    with Timer() as timer:
+        model.learn(steps, log_interval=None)
+    train, raw = f"{steps / timer.wall:.0f} | {steps / timer.cpu:.0f}", f"{raw_wall:.0f} | {raw_cpu:.0f}"
+    print(f"{'MFEC':>5} {env_id:>20} {len(model.policy.memory):>12} {train:>16} {raw:>16}")
 
 
 def main() -> None:

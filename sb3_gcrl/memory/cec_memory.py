@@ -223,19 +223,22 @@ class CECMemory:
     def select_actions(self, keys: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Sample one stored action per query by Eq. 4.5 (no exploration noise: the caller adds it).
 
+        Sampling uses the Gumbel-max trick, ``argmax_i (v_i / tau + Gumbel_i)``, which draws exactly
+        from ``softmax(v / tau)`` without exponentials (so it cannot overflow) and in few array ops.
+
         :param keys: ``(n_queries, key_dim)``.
         :param rng: random generator used for sampling.
         :return: ``(actions, found)``: ``(n_queries, action_dim)`` actions and a boolean mask of the
             queries that had a neighbour within ``n * d``; for the others the action row is 0 and the
             caller should act randomly (Algorithm 1: uniform random action).
         """
-        rows, probs = self.selection_probabilities(keys)
-        found = probs[:, 0] > 0  # the nearest neighbour is valid whenever any is
-        cdf = np.cumsum(probs, axis=1)
-        u = rng.random((len(keys), 1)) * cdf[:, -1:]
-        choice = np.minimum((cdf <= u).sum(axis=1), probs.shape[1] - 1)
-        chosen = rows[np.arange(len(keys)), choice]
-        actions = np.where(found[:, None], self.actions[np.maximum(chosen, 0)], 0.0).astype(np.float32)
+        dist, rows = self.index.search(keys, self.n_neighbors)
+        valid = dist <= self.filter_factor * self.distance_threshold  # padding has dist = inf
+        found = valid[:, 0]  # neighbours are sorted by distance: any valid -> the nearest is valid
+        scores = np.where(valid, self.values[rows] / self.temperature + rng.gumbel(size=rows.shape), -np.inf)
+        chosen = rows[np.arange(len(rows)), scores.argmax(axis=1)]
+        actions = self.actions[chosen]  # a copy (fancy indexing)
+        actions[~found] = 0.0
         return actions, found
 
     def greedy_actions(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

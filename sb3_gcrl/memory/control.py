@@ -295,7 +295,7 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
 
         :param total_timesteps: env steps (summed over envs).
         :param callback: SB3 callback(s), called after every vectorised step.
-        :param log_interval: dump the logs every ``log_interval`` finished episodes (None: never).
+        :param log_interval: dump the logs every ``log_interval`` finished episodes (None or <= 0: never).
         :param tb_log_name: tensorboard run name.
         :param reset_num_timesteps: start counting from 0 (and reset the envs).
         :param progress_bar: show a tqdm/rich progress bar.
@@ -332,7 +332,7 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
                 for name, count in counts.items():
                     self._memory_counts[name] = self._memory_counts.get(name, 0) + count
                 self._episode_num += 1
-                if log_interval is not None and self._episode_num % log_interval == 0:
+                if log_interval and log_interval > 0 and self._episode_num % log_interval == 0:
                     self.dump_logs()
             self._last_obs = new_obs  # type: ignore[assignment]
             self._last_episode_starts = dones
