@@ -41,6 +41,12 @@ def _batch_size(observation: th.Tensor | dict[str, th.Tensor]) -> int:
     return int(observation.shape[0])
 
 
+def _device(observation: th.Tensor | dict[str, th.Tensor]) -> th.device:
+    if isinstance(observation, dict):
+        return next(iter(observation.values())).device
+    return observation.device
+
+
 def _select_rows(observation: th.Tensor | dict[str, th.Tensor], index: th.Tensor) -> Any:
     if isinstance(observation, dict):
         return {key: value[index] for key, value in observation.items()}
@@ -180,12 +186,13 @@ class TwoMemoryDispatchMixin:
             rows = np.flatnonzero(memories == memory)
             if rows.size == 0:
                 continue
-            index = th.as_tensor(rows, device=self.device)
+            # (the tensor's device: ``self.device`` walks all parameters, a measurable cost per env step)
+            device = _device(observation)
+            index = th.as_tensor(rows, device=device)
             memory_actions = act(_select_rows(observation, index), deterministic)
             if actions is None:
-                shape = (n, *memory_actions.shape[1:])
-                actions = th.zeros(shape, dtype=memory_actions.dtype, device=self.device)
-            actions[index] = memory_actions.to(self.device)
+                actions = th.zeros((n, *memory_actions.shape[1:]), dtype=memory_actions.dtype, device=device)
+            actions[index] = memory_actions.to(device)
         assert actions is not None
         return actions
 
