@@ -47,7 +47,9 @@ class ProgressDisplay:
     def __init__(self, total_steps: int, n_runs: int, enabled: bool = True) -> None:
         from tqdm.auto import tqdm
 
-        self.bar = tqdm(total=total_steps, unit="step", unit_scale=True, disable=not enabled, dynamic_ncols=True)
+        self.bar = tqdm(
+            total=total_steps, unit="step", unit_scale=True, disable=not enabled, dynamic_ncols=True, mininterval=0.5
+        )
         self.n_runs = n_runs
         self.running = self.finished = self.failed = 0
         self._refresh()
@@ -70,7 +72,8 @@ class ProgressDisplay:
             self.finished += 1
         else:
             self.failed += 1
-            self.bar.write(f"run failed: {spec.env_id} / {spec.method} / seed {spec.seed} (see its train.log)")
+            message = f"run failed: {spec.env_id} / {spec.method} / seed {spec.seed} (see its train.log)"
+            self.bar.write(message, file=sys.stderr)
         self._refresh()
 
     def close(self) -> None:
