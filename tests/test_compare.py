@@ -241,6 +241,8 @@ def test_cli_reports_bad_names_before_running_anything(tmp_path, capsys):
     assert "Valid algorithms" in capsys.readouterr().err
     assert compare_main(["-m", "sac", "-e", "NoSuchEnv-v0", "-o", str(tmp_path)]) == EXIT_USAGE
     assert "Unknown env 'NoSuchEnv-v0'" in capsys.readouterr().err
+    assert compare_main(["-m", "sac", "-e", "Pendulum-v1", "-n", "0", "-o", str(tmp_path)]) == EXIT_USAGE
+    assert "n_timesteps must be >= 1, got 0" in capsys.readouterr().err
     assert not (tmp_path / "runs").exists()
     with pytest.raises(SystemExit):
         compare_main(["--preset", "nope"])

@@ -122,14 +122,18 @@ def main(argv: list[str] | None = None) -> int:
     if preset_name is not None and preset_name not in PRESETS:
         parser.error(f"unknown preset {preset_name!r}; choose one of {sorted(PRESETS)}")
     preset = PRESETS.get(preset_name) if preset_name else None
-    methods = args.methods or (preset.methods if preset else None)
-    envs = args.envs or (preset.envs if preset else None)
+
+    def pick(value: Any, preset_field: str, default: Any = None) -> Any:
+        """The command-line value if given, else the preset's, else the default."""
+        if value is not None:
+            return value
+        return getattr(preset, preset_field) if preset is not None else default
+
+    methods, envs = pick(args.methods, "methods"), pick(args.envs, "envs")
     if not methods or not envs:
         parser.error("give both --methods and --envs (or a --preset)")
-    seeds = (
-        args.seeds or (list(range(args.n_seeds)) if args.n_seeds else None) or (preset.seeds if preset else (0, 1, 2))
-    )
-    hyperparams = {**(preset.hyperparams if preset else {}), **dict(args.hyperparams)}
+    seeds = pick(args.seeds or (list(range(args.n_seeds)) if args.n_seeds is not None else None), "seeds", (0, 1, 2))
+    output = args.output or Path("results") / (preset_name or "comparison")
 
     from sb3_gcrl.compare.runner import compare
 
@@ -139,15 +143,15 @@ def main(argv: list[str] | None = None) -> int:
             methods,
             envs,
             seeds=seeds,
-            n_timesteps=args.n_timesteps or (preset.n_timesteps if preset else None),
-            eval_freq=args.eval_freq or (preset.eval_freq if preset else None),
-            n_eval_episodes=args.eval_episodes or (preset.n_eval_episodes if preset else 5),
-            output=args.output or Path("results") / (preset_name or "comparison"),
+            n_timesteps=pick(args.n_timesteps, "n_timesteps"),
+            eval_freq=pick(args.eval_freq, "eval_freq"),
+            n_eval_episodes=pick(args.eval_episodes, "n_eval_episodes", 5),
+            output=output,
             backend=args.backend,
             n_workers=args.workers,
             ray_address=args.ray_address,
-            hyperparams=hyperparams,
-            env_kwargs={**(preset.env_kwargs if preset else {}), **dict(args.env_kwargs)},
+            hyperparams={**pick(None, "hyperparams", {}), **dict(args.hyperparams)},
+            env_kwargs={**pick(None, "env_kwargs", {}), **dict(args.env_kwargs)},
             gym_packages=args.gym_packages,
             config_dir=config_dir,
             overwrite=args.overwrite,
@@ -155,12 +159,11 @@ def main(argv: list[str] | None = None) -> int:
             save_models=args.save_models,
             final_window=args.final_window,
             solve_threshold=args.solve_threshold,
-            metric=args.metric or (preset.metric if preset else "auto"),
-            title=args.title or (preset.description if preset else None),
+            metric=pick(args.metric, "metric", "auto"),
+            title=pick(args.title, "description"),
             command=command,
         )
     except KeyboardInterrupt:
-        output = args.output or Path("results") / (preset_name or "comparison")
         print(
             f"\ninterrupted: finished runs are kept in {output}; run the same command again to resume", file=sys.stderr
         )
