@@ -72,11 +72,18 @@ def get_env(envs: dict, env_id: str) -> gym.Env:
 
 def test_registry_matches_task_table():
     register_reset_free_envs()  # idempotent
-    assert len(RESET_FREE_ENV_IDS) == 7
-    for env_id, task in RESET_FREE_TASKS.items():
-        spec = gym.spec(env_id)
-        assert spec.max_episode_steps == task.eval_horizon
+    assert len(RESET_FREE_ENV_IDS) == 7 and len(RESET_FREE_TASKS) == 8  # + PointUMaze, registered by envs/
+    for env_id in RESET_FREE_ENV_IDS:
+        assert gym.spec(env_id).max_episode_steps == RESET_FREE_TASKS[env_id].eval_horizon
         assert env_id.startswith("GCRL/")
+    point_maze = RESET_FREE_TASKS["GCRL/PointUMazeGoal-v0"]
+    assert point_maze.env_id in gym.registry
+    assert (point_maze.eval_horizon, point_maze.hard_reset_every) == (100, 200_000)
+    env = gym.make(point_maze.env_id).unwrapped
+    rng = np.random.default_rng(0)
+    for goal in (env.sample_initial_goal(rng), env.sample_evaluation_goal(rng)):
+        assert np.all(goal >= point_maze.goal_low) and np.all(goal <= point_maze.goal_high)
+    env.close()
     assert RESET_FREE_TASKS["GCRL/Tabletop-v0"].eval_horizon == tabletop_module.EVAL_HORIZON == 200
     assert RESET_FREE_TASKS["GCRL/ResetFreeAntArena-v0"].eval_horizon == ant_module.EVAL_HORIZON == 500
     assert RESET_FREE_TASKS["GCRL/SawyerDoor-v0"].eval_horizon == door_module.EVAL_HORIZON == 300

@@ -5,7 +5,8 @@ vectorised ``compute_reward``, ``info["is_success"]``) that declares its task-re
 env: ``sample_initial_goal(rng)`` (rho_0) and ``sample_evaluation_goal(rng)`` (rho_g*). The envs themselves are
 episodic (registered with ``max_episode_steps`` = the evaluation horizon); reset-free training wraps them
 with the reset-free wrapper, using :data:`RESET_FREE_TASKS` for the hard-reset interval. PointUMaze, the
-eighth task, is ``GCRL/PointUMazeGoal-v0`` from :mod:`sb3_gcrl.envs`.
+eighth task, is ``GCRL/PointUMazeGoal-v0``, registered by :mod:`sb3_gcrl.envs` with 300-step episodes; its entry
+here carries the IBC reset-free protocol (evaluate 100 steps: pass ``eval_horizon`` to the reset-free wrapper).
 
 =====================================  ==========  =================  =========================================
 id                                     eval steps  hard reset every   source
@@ -17,6 +18,7 @@ GCRL/ResetFreeFetchPickAndPlaceHard-v0 50          1e5                thesis Pic
 GCRL/ResetFreeAntArena-v0              500         2e5                thesis Ant (from PEG's AntMaze)
 GCRL/Tabletop-v0                       200         2e5                EARL Tabletop
 GCRL/SawyerDoor-v0                     300         2e5                EARL Sawyer Door (needs metaworld)
+GCRL/PointUMazeGoal-v0                 100         2e5                IBC PointUMaze (registered elsewhere)
 =====================================  ==========  =================  =========================================
 """
 
@@ -41,6 +43,7 @@ class ResetFreeTask:
     :param goal_low: lower corner of the reachable goal-space box (for binned visited-goal schedulers such as
         the novelty scheduler's ``goal_low``, and for visitation heatmaps).
     :param goal_high: upper corner of that box.
+    :param registered_here: False for PointUMaze, which :mod:`sb3_gcrl.envs` registers (with its own horizon).
     """
 
     env_id: str
@@ -50,6 +53,7 @@ class ResetFreeTask:
     source: str
     goal_low: tuple[float, ...]
     goal_high: tuple[float, ...]
+    registered_here: bool = True
 
 
 _FETCH = "sb3_gcrl.envs.reset_free.fetch"
@@ -120,9 +124,20 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             sawyer_door.GOAL_LOW,
             sawyer_door.GOAL_HIGH,
         ),
+        ResetFreeTask(
+            "GCRL/PointUMazeGoal-v0",
+            "sb3_gcrl.envs.point_maze:PointMazeGoalTaskEnv",
+            100,
+            200_000,
+            "IBC PointUMaze",
+            (-1.5, -1.5),  # the U's free cells (cell size 1, walls from +-1.5 outwards)
+            (1.5, 1.5),
+            registered_here=False,
+        ),
     )
 }
-RESET_FREE_ENV_IDS: tuple[str, ...] = tuple(RESET_FREE_TASKS)
+#: The ids this module registers (the suite without PointUMaze).
+RESET_FREE_ENV_IDS: tuple[str, ...] = tuple(t.env_id for t in RESET_FREE_TASKS.values() if t.registered_here)
 
 
 def register_reset_free_envs() -> None:
@@ -132,7 +147,7 @@ def register_reset_free_envs() -> None:
     the install command.
     """
     for task in RESET_FREE_TASKS.values():
-        if task.env_id not in gym.registry:
+        if task.registered_here and task.env_id not in gym.registry:
             gym.register(id=task.env_id, entry_point=task.entry_point, max_episode_steps=task.eval_horizon)
 
 
