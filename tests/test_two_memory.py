@@ -308,6 +308,39 @@ def test_stock_dqn_with_two_memory_policy_and_callback():
         TwoMemoryDQN("MlpPolicy", Corridor(), **TINY_DQN).learn(10, callback=TwoMemoryCallback())
 
 
+class GoalSlider(gym.Env):
+    """Slider with a Dict observation (observation, achieved_goal, desired_goal)."""
+
+    box = gym.spaces.Box(-5.0, 5.0, (1,), np.float32)
+    observation_space = gym.spaces.Dict({"observation": box, "achieved_goal": box, "desired_goal": box})
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def _obs(self):
+        x = np.array([self.x], np.float32)
+        return {"observation": x, "achieved_goal": x, "desired_goal": np.array([1.0], np.float32)}
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x, self.t = 0.0, 0
+        return self._obs(), {}
+
+    def step(self, action):
+        self.x = float(np.clip(self.x + float(action[0]) / 4, -5, 5))
+        self.t += 1
+        done = abs(self.x - 1.0) < 0.2
+        return self._obs(), float(done), done, self.t >= 10, {}
+
+
+def test_two_memory_sac_dict_observations():
+    model = TwoMemorySAC("MultiInputPolicy", GoalSlider(), p_ec_schedule=0.5, seed=0, learning_starts=20,
+                         batch_size=16, buffer_size=1_000, policy_kwargs=dict(net_arch=[16]))  # fmt: skip
+    model.learn(200)
+    assert model.policy.episode_counts.sum() > 0
+    assert model.policy.embedding.observation_keys == ("observation", "desired_goal")
+    with pytest.raises(ValueError, match="Dict observations"):
+        TwoMemorySAC("MultiInputPolicy", GoalSlider(), data_sharing=False)
+
+
 def test_minatar_cnn_matches_authors_network():
     env = gym.make("MinAtar/Breakout-v1")
     model = TwoMemoryDQN("MinAtarPolicy", env, learning_starts=10, buffer_size=100)

@@ -7,6 +7,7 @@ from sb3_gcrl.two_memory.policies import (
     MinAtarDQNPolicy,
     TwoMemoryDQNPolicy,
     TwoMemoryMinAtarPolicy,
+    TwoMemoryMultiInputSACPolicy,
     TwoMemorySACPolicy,
 )
 from sb3_gcrl.two_memory.schedules import (
@@ -36,6 +37,7 @@ __all__ = [
     "TwoMemoryDQN",
     "TwoMemoryDQNPolicy",
     "TwoMemoryMinAtarPolicy",
+    "TwoMemoryMultiInputSACPolicy",
     "TwoMemorySAC",
     "TwoMemorySACPolicy",
     "make_pec_schedule",

@@ -334,6 +334,13 @@ class TwoMemoryAlgorithmMixin:
         """Use a :class:`SourceTaggedReplayBuffer` (unless the user gave a buffer class) that, without data sharing,
         samples RL-collected transitions only."""
         if self.replay_buffer_class is None:
+            if isinstance(self.observation_space, spaces.Dict):
+                if not data_sharing:
+                    raise ValueError(
+                        "data_sharing=False is not supported with Dict observations yet (the source-tagged buffer is "
+                        "a ReplayBuffer); flatten the observation (gymnasium.wrappers.FlattenObservation) or share data"
+                    )
+                return  # SB3 picks its DictReplayBuffer; every transition is sampled, as data sharing wants
             self.replay_buffer_class = SourceTaggedReplayBuffer
         if issubclass(self.replay_buffer_class, SourceTaggedReplayBuffer):
             self.replay_buffer_kwargs.setdefault(

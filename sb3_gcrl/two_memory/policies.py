@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, CombinedExtractor
 from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.dqn.policies import DQNPolicy
 from stable_baselines3.sac.policies import SACPolicy
@@ -314,3 +314,12 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
     def _load_episodic_state(self, state: dict[str, th.Tensor]) -> None:
         self.embedding.set_state(_from_tensors(state, "embedding/"))
         self.cec.load_state_dict(_from_tensors(state, "cec/"))
+
+
+class TwoMemoryMultiInputSACPolicy(TwoMemorySACPolicy):
+    """:class:`TwoMemorySACPolicy` for Dict observations (goal envs): SB3's ``CombinedExtractor`` for the networks;
+    the CEC key concatenates ``observation`` and ``desired_goal`` (see :class:`~sb3_gcrl.memory.KeyEmbedding`)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("features_extractor_class", CombinedExtractor)
+        super().__init__(*args, **kwargs)

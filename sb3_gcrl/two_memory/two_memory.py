@@ -12,6 +12,7 @@ from sb3_gcrl.two_memory.policies import (
     PecSpec,
     TwoMemoryDQNPolicy,
     TwoMemoryMinAtarPolicy,
+    TwoMemoryMultiInputSACPolicy,
     TwoMemorySACPolicy,
 )
 
@@ -106,7 +107,7 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
         "MlpPolicy": TwoMemorySACPolicy,
-        "MultiInputPolicy": TwoMemorySACPolicy,
+        "MultiInputPolicy": TwoMemoryMultiInputSACPolicy,
     }
     policy: TwoMemorySACPolicy
 
