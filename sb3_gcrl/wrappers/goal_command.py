@@ -86,6 +86,7 @@ class GoalCommandWrapper(
         self._reached = False
         self._success_reward: float | None = None
         self._compute_reward = env.unwrapped.compute_reward
+        self._goal_obs = np.zeros(goal_dim)
         self._rng = np.random.default_rng()
         self._task_goal_rng = np.random.default_rng()
 
@@ -138,6 +139,7 @@ class GoalCommandWrapper(
             self.scheduler.reset_pending()
         self.scheduler.observe(obs["achieved_goal"])
         self.goal = np.asarray(self.scheduler.next_goal(obs, self._rng), dtype=np.float64)
+        self._goal_obs = self.goal.astype(obs["desired_goal"].dtype)  # in the observation's dtype, once
         self.goal_kind = self.scheduler.kind
         self.goal_counts[self.goal_kind] = self.goal_counts.get(self.goal_kind, 0) + 1
         self._reached = False
@@ -146,7 +148,7 @@ class GoalCommandWrapper(
     def _command(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         # a new dict: inner wrappers keep references to the observations they returned
         commanded = dict(obs)
-        commanded["desired_goal"] = self.goal.astype(obs["desired_goal"].dtype, copy=True)  # type: ignore[union-attr]
+        commanded["desired_goal"] = self._goal_obs.copy()
         return commanded
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
