@@ -62,13 +62,16 @@ def launch(
     return method, seed, time.time() - start, rc
 
 
-def load_run(out: Path, method: str, seed: int) -> dict | None:
+def load_run(out: Path, method: str, seed: int, table_steps: int | None = None) -> dict | None:
     files = sorted(run_dir(out, method, seed).glob("sac/*/evaluations.npz"))
     if not files:
         return None
     data = np.load(files[-1])
     success = data["successes"].mean(axis=1) if data["successes"].size else np.zeros(len(data["timesteps"]))
     result = {"timesteps": data["timesteps"], "success": success}
+    if table_steps is not None:
+        keep = data["timesteps"] <= table_steps
+        result["table_timesteps"], result["table_success"] = data["timesteps"][keep], success[keep]
     buffer_file = files[-1].parent / "replay_buffer.pkl"
     if buffer_file.exists():
         from sb3_gcrl.callbacks.visitation import task_relevant_fraction
@@ -76,7 +79,9 @@ def load_run(out: Path, method: str, seed: int) -> dict | None:
         with open(buffer_file, "rb") as f:
             buffer = pickle.load(f)
         size = buffer.buffer_size if buffer.full else buffer.pos
+        # transitions are stored in order (n_envs = 1): the first table_steps rows are the equal-budget data
         achieved = buffer.next_observations["achieved_goal"][:size].reshape(-1, 2).astype(np.float64)
+        achieved = achieved[:table_steps] if table_steps is not None else achieved
         result["achieved"] = achieved
         result["task_relevant"] = task_relevant_fraction(achieved, task_goals(), TASK_RADIUS)
     return result
@@ -108,6 +113,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--eval-freq", type=int, default=5_000)
     parser.add_argument("--eval-episodes", type=int, default=10)
     parser.add_argument("--final-evals", type=int, default=2, help="evaluations averaged into the final score")
+    parser.add_argument(
+        "--table-steps",
+        type=int,
+        default=None,
+        help="equal budget for the table: evaluations up to this step, first this many replay transitions "
+        "(default: --steps; runs interrupted with SIGINT keep their saved buffer)",
+    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("runs/ch3"))
     parser.add_argument("--analyse-only", action="store_true")
@@ -134,10 +146,12 @@ def main(argv: list[str] | None = None) -> int:
     for method in args.methods:
         finals, relevant = [], []
         for seed in args.seeds:
-            run = load_run(args.out, method, seed)
+            run = load_run(args.out, method, seed, args.table_steps or args.steps)
             if run is None:
                 continue
-            final = float(np.mean(run["success"][-args.final_evals :]))
+            if len(run["table_success"]) == 0:
+                continue
+            final = float(np.mean(run["table_success"][-args.final_evals :]))
             finals.append(final)
             curves.setdefault(method, []).append((run["timesteps"], run["success"]))
             if "task_relevant" in run:
