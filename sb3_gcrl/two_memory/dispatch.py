@@ -271,8 +271,19 @@ class TwoMemoryAlgorithmMixin:
         policy = self.policy
         policy.num_timesteps = self.num_timesteps
         memories = policy.assign_memories()
-        unscaled_action, _ = policy.predict(self._last_obs, deterministic=False)
-        unscaled_action = np.asarray(unscaled_action).reshape((n_envs, *self.action_space.shape))
+        # policy.predict() without its per-call set_training_mode (it walks every sub-module on each env step)
+        if policy.training:
+            policy.set_training_mode(False)
+        obs_tensor, _ = policy.obs_to_tensor(self._last_obs)
+        with th.no_grad():
+            action = policy._predict(obs_tensor, deterministic=False).cpu().numpy()
+        action = action.reshape((n_envs, *self.action_space.shape))
+        if isinstance(self.action_space, spaces.Box):
+            # as BasePolicy.predict: squashed policies output [-1, 1], others are clipped to the bounds
+            low, high = self.action_space.low, self.action_space.high
+            unscaled_action = policy.unscale_action(action) if policy.squash_output else np.clip(action, low, high)
+        else:
+            unscaled_action = action
         random_rows = np.zeros(n_envs, dtype=bool)
         if self.num_timesteps < learning_starts:
             random_rows |= memories == PARAMETRIC
