@@ -121,7 +121,7 @@ def run_deep(task: str, variant: str, seed: int, algo: str, steps: int, eval_fre
         "learning_rate": 1e-3,
         "gamma": 0.98,
         "batch_size": 256,
-        "learning_starts": 4 * 300,
+        "learning_starts": 4 * (env.spec.max_episode_steps or 300),  # > longest episode (HER needs it complete)
         "policy_kwargs": {"net_arch": [256, 256, 256]},
         "replay_buffer_class": ExecutedActionHerReplayBuffer,
         "replay_buffer_kwargs": {"n_sampled_goal": 4, "goal_selection_strategy": "future"},
