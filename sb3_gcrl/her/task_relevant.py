@@ -22,6 +22,18 @@ from sb3_gcrl.her.executed_action import ExecutedActionHerReplayBuffer
 TASK_GOALS_METHOD = "sample_task_goals"
 
 
+def _serves_task_goals(env: VecEnv) -> bool:
+    """Whether every env of ``env`` serves ``sample_task_goals`` (checked without pickling bound methods)."""
+    from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
+
+    if all(env.env_is_wrapped(GoalCommandWrapper)):
+        return True
+    try:
+        return env.has_attr(TASK_GOALS_METHOD)
+    except Exception:  # e.g. a SubprocVecEnv that cannot send the attribute back
+        return False
+
+
 class TaskRelevantHerReplayBuffer(ExecutedActionHerReplayBuffer):
     """HER buffer relabeling toward task-relevant goals (rho_g*, rho_0) w.p. alpha; stores executed actions.
 
@@ -50,7 +62,7 @@ class TaskRelevantHerReplayBuffer(ExecutedActionHerReplayBuffer):
             raise ValueError(f"task_goal_ratio (alpha) must be in [0, 1], got {task_goal_ratio}")
         super().__init__(buffer_size, observation_space, action_space, env, **kwargs)
         self.task_goal_ratio = float(task_goal_ratio)
-        if self.task_goal_ratio > 0 and env is not None and not env.has_attr(TASK_GOALS_METHOD):
+        if self.task_goal_ratio > 0 and env is not None and not _serves_task_goals(env):
             raise TypeError(
                 "TaskRelevantHerReplayBuffer needs the env to serve task-relevant goals: wrap it in "
                 "sb3_gcrl.wrappers.GoalCommandWrapper or GoExploreWrapper (env_wrapper in an RL-Zoo YAML), "
