@@ -393,3 +393,33 @@ def test_run_json_of_an_older_version_without_new_fields_still_counts_as_finishe
     del record["spec"]["env_kwargs"]  # a field added later, at its default value
     (tmp_path / "run.json").write_text(json.dumps(record))
     assert is_finished(tmp_path, spec)
+
+
+GOAL_SAC_CONFIG = """
+GCRL/PointUMazeGoal-v0:
+  n_timesteps: 200
+  policy: 'MultiInputPolicy'
+  learning_starts: 100
+  buffer_size: 1000
+  batch_size: 16
+  policy_kwargs: "dict(net_arch=[8])"
+"""
+
+
+def test_goal_env_runs_keep_visited_goals_and_get_visitation_heatmaps(tmp_path):
+    """2-D goal spaces: achieved goals of the replay buffer are stored per run and drawn per method (Fig. 3.5)."""
+    config = tmp_path / "goal_sac.yml"
+    config.write_text(GOAL_SAC_CONFIG)
+    methods = [parse_method(f"a=sac:{config}"), parse_method(f"b=sac:{config}")]
+    specs = plan_runs(methods, ["GCRL/PointUMazeGoal-v0"], [0], None, 100, 1, {}, (), tmp_path)
+    output = tmp_path / "out"
+    for spec in specs:
+        result = execute_run(spec, tmp_path / "zoo", io.StringIO())
+        assert result.status == "finished", result.error
+        assert result.visited_goals.shape == (200, 2)  # one achieved goal per env step
+        write_run_result(output / "runs" / spec.relative_dir, result)
+    assert (output / "runs" / specs[0].relative_dir / "visited_goals.npy").is_file()
+    summary = summarize(output, specs)
+    write_outputs(output, summary, "goal env", "", 1.0)
+    assert (output / "visitation_GCRL-PointUMazeGoal-v0.png").stat().st_size > 0
+    assert "visitation_GCRL-PointUMazeGoal-v0.png" in (output / "report.md").read_text()

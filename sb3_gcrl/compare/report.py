@@ -7,14 +7,22 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 from huggingface_sb3 import EnvironmentName
+from matplotlib.figure import Figure
 
 from sb3_gcrl.analysis.curves import METRICS, aggregate_curves, choose_metric, load_curves
-from sb3_gcrl.analysis.plots import METRIC_LABELS, plot_learning_curves, plot_memory_choice
-from sb3_gcrl.analysis.statistics import aggregate_scores, probability_of_improvement, run_scores
+from sb3_gcrl.analysis.plots import (
+    METRIC_LABELS,
+    plot_learning_curves,
+    plot_memory_choice,
+    plot_visitation_heatmap,
+    visitation_counts,
+)
+from sb3_gcrl.analysis.statistics import aggregate_scores, probability_of_improvement, run_scores, visitation_entropy
 from sb3_gcrl.compare.run import RunSpec
-from sb3_gcrl.compare.storage import EVALUATIONS_FILE, LOG_FILE, atomic_write_text, read_run_record
+from sb3_gcrl.compare.storage import EVALUATIONS_FILE, LOG_FILE, VISITED_FILE, atomic_write_text, read_run_record
 
 #: default level of ``success_rate`` that counts as solved (for the "solved" columns)
 SUCCESS_THRESHOLD = 0.9
@@ -30,6 +38,7 @@ class Summary:
     :param metrics: metric used per env.
     :param failed: ``(spec, error, log path)`` of the runs that failed.
     :param run_wall_times: wall time (s) of every finished run, as its worker measured it.
+    :param run_dirs: ``(env, method) -> folders`` of the finished runs.
     :param table: the printed Markdown table.
     """
 
@@ -40,6 +49,7 @@ class Summary:
     failed: list[tuple[RunSpec, str, Path]]
     table: str
     run_wall_times: list[float]
+    run_dirs: dict[tuple[str, str], list[Path]]
 
 
 def _format_interval(value: float, low: float, high: float, digits: int) -> str:
@@ -105,13 +115,14 @@ def summarize(
     if metric not in ("auto", *METRICS):
         raise ValueError(f"metric must be 'auto' or one of {METRICS}, got {metric!r}")
     metric_choice = metric
-    finished, failed, wall_times = [], [], []
+    finished, failed, wall_times, run_dirs = [], [], [], {}
     for spec in specs:
         run_dir = output / "runs" / spec.relative_dir
         record = read_run_record(run_dir)
         if record is not None and record["status"] == "finished":
             finished.append((spec.env_id, spec.method, spec.seed, run_dir / EVALUATIONS_FILE))
             wall_times.append(float(record["wall_time_s"]))
+            run_dirs.setdefault((spec.env_id, spec.method), []).append(run_dir)
         else:
             error = "never ran (interrupted?)" if record is None else record.get("error", "")
             failed.append((spec, error, run_dir / LOG_FILE))
@@ -136,7 +147,7 @@ def summarize(
     scores_table = _in_order(pd.concat(scores, ignore_index=True), order) if scores else pd.DataFrame()
     summary = _in_order(pd.concat(summaries, ignore_index=True), order) if summaries else pd.DataFrame()
     table = format_table(summary, metrics) if len(summary) else "(no finished runs)"
-    return Summary(curves, scores_table, summary, metrics, failed, table, wall_times)
+    return Summary(curves, scores_table, summary, metrics, failed, table, wall_times, run_dirs)
 
 
 def _in_order(table: pd.DataFrame, order: dict[tuple[str, str], int]) -> pd.DataFrame:
@@ -173,6 +184,7 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
         # the figure gets a short title (the report's may be a sentence); panels are titled by env
         plot_learning_curves(aggregated, summary.metrics, path=output / "curves.png", title=" vs ".join(methods))
         figure_md = "![learning curves](curves.png)\n" + _memory_choice_figures(output, summary)
+        figure_md += _visitation_figures(output, summary)
     lines = [
         f"# {title}",
         "",
@@ -229,6 +241,36 @@ def _memory_choice_figures(output: Path, summary: Summary) -> str:
         )
         lines.append(f"![{method} memory choice on {env_id}]({name})")
     return "\n".join(lines) + "\n"
+
+
+def _visitation_figures(output: Path, summary: Summary, bins: int = 40) -> str:
+    """Fig. 3.5-style state-visitation heatmaps (achieved goals of the training data, all seeds of a method)."""
+    lines = []
+    for env_id in dict.fromkeys(env for env, _ in summary.run_dirs):
+        points = {}
+        for (env, method), run_dirs in summary.run_dirs.items():
+            files = [run_dir / VISITED_FILE for run_dir in run_dirs if (run_dir / VISITED_FILE).is_file()]
+            if env == env_id and files:
+                points[method] = np.concatenate([np.load(file) for file in files])
+        if not points:
+            continue
+        stacked = np.concatenate(list(points.values()))
+        low, high = stacked.min(axis=0), stacked.max(axis=0)
+        margin = 0.02 * np.maximum(high - low, 1e-6)
+        bounds = tuple(zip(low - margin, high + margin))  # shared by the panels, so they compare
+        figure = Figure(figsize=(4.2 * len(points), 3.6), layout="constrained")
+        for ax, (method, goals) in zip(figure.subplots(1, len(points), squeeze=False)[0], points.items()):
+            counts = visitation_counts(goals, bins, bounds)
+            title = f"{method} (entropy {visitation_entropy(counts):.2f})"
+            plot_visitation_heatmap(counts, bounds, ax=ax, title=title)
+        name = f"visitation_{EnvironmentName(env_id)}.png"
+        figure.suptitle(f"{env_id}: achieved goals in the replay buffer, all seeds")
+        figure.savefig(output / name, dpi=150, bbox_inches="tight")
+        lines.append(f"![state visitation on {env_id}]({name})")
+    if not lines:
+        return ""
+    header = "### State visitation (Fig. 3.5 style; entropy of Eq. 6.7 over the 40 x 40 bins)"
+    return "\n".join(["", header, "", *lines]) + "\n"
 
 
 def _improvement_section(summary: Summary) -> list[str]:

@@ -19,6 +19,7 @@ from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, TextIO
 
+import numpy as np
 from huggingface_sb3 import EnvironmentName
 
 #: the evaluation env is seeded away from the training env (RL-Zoo seeds both with the run seed)
@@ -94,7 +95,11 @@ class RunSpec:
 
 @dataclass
 class RunResult:
-    """Outcome of a run: ``status`` is ``"finished"`` or ``"failed"`` (then ``error`` holds the traceback)."""
+    """Outcome of a run: ``status`` is ``"finished"`` or ``"failed"`` (then ``error`` holds the traceback).
+
+    ``visited_goals`` holds up to :data:`MAX_VISITED_POINTS` achieved goals of the training data (2-D goal spaces
+    of off-policy agents only, else None), for state-visitation heatmaps.
+    """
 
     spec: RunSpec
     status: str
@@ -102,6 +107,33 @@ class RunResult:
     wall_time_s: float = math.nan
     error: str = ""
     log: str = ""
+    visited_goals: np.ndarray | None = None
+
+
+#: cap on the achieved goals kept per run for visitation heatmaps (evenly spaced over the replay buffer)
+MAX_VISITED_POINTS = 20_000
+
+
+def visited_goals(model: Any, max_points: int = MAX_VISITED_POINTS) -> np.ndarray | None:
+    """Achieved goals in an off-policy agent's replay buffer (what training visited), when the goal space is 2-D.
+
+    :param model: a trained SB3 algorithm.
+    :param max_points: keep at most this many, evenly spaced in storage order (i.e. over training time).
+    :return: float32 array ``(n, 2)``, or None (no replay buffer, no ``achieved_goal``, not 2-D, empty).
+    """
+    buffer = getattr(model, "replay_buffer", None)
+    observations = getattr(buffer, "observations", None)
+    if not isinstance(observations, dict) or "achieved_goal" not in observations:
+        return None
+    stored = observations["achieved_goal"]
+    if stored.shape[-1] != 2:
+        return None
+    n_rows = buffer.buffer_size if buffer.full else buffer.pos
+    goals = stored[:n_rows].reshape(-1, 2)
+    if len(goals) == 0:
+        return None
+    keep = np.unique(np.linspace(0, len(goals) - 1, min(len(goals), max_points)).astype(np.int64))
+    return goals[keep].astype(np.float32)
 
 
 def prepare_process(gym_packages: tuple[str, ...] = (), single_thread: bool = True) -> None:
@@ -199,7 +231,8 @@ def execute_run(
             eval_env.close()
             if spec.save_model:
                 exp_manager.save_trained_model(model)
-        return RunResult(spec, "finished", recorder.records, time.perf_counter() - start)
+        wall_time = time.perf_counter() - start
+        return RunResult(spec, "finished", recorder.records, wall_time, visited_goals=visited_goals(model))
     except Exception:
         error = traceback.format_exc()
         print(error, file=log_file)

@@ -8,8 +8,9 @@
         evaluations.csv          one row per evaluation (see EVALUATION_COLUMNS)
         run.json                 spec, status, wall time, error; written last (its presence = run ended)
         train.log                stdout/stderr of the run
+        visited_goals.npy        achieved goals of the training data (2-D goal spaces of off-policy agents)
         zoo/                     RL-Zoo's own outputs (config.yml, args.yml, monitor.csv, model if saved)
-      curves.csv scores.csv summary.csv curves.png report.md
+      curves.csv scores.csv summary.csv curves.png report.md (+ memory_*.png, visitation_*.png)
 """
 
 from __future__ import annotations
@@ -24,30 +25,38 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from sb3_gcrl.compare.evaluation import EVALUATION_COLUMNS
 from sb3_gcrl.compare.run import RunResult, RunSpec
 
 RUN_FILE = "run.json"
+VISITED_FILE = "visited_goals.npy"
 EVALUATIONS_FILE = "evaluations.csv"
 LOG_FILE = "train.log"
 
 
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename, so readers never see half a file.
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file and a rename, so readers never see half a file.
 
     :param path: destination.
-    :param text: content.
+    :param data: content.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "w", newline="") as file:
-            file.write(text)
+        with os.fdopen(fd, "wb") as file:
+            file.write(data)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """:func:`atomic_write_bytes` for text (UTF-8)."""
+    atomic_write_bytes(path, text.encode())
 
 
 def evaluations_to_csv(evaluations: list[dict[str, float]]) -> str:
@@ -68,6 +77,10 @@ def write_run_result(run_dir: Path, result: RunResult) -> None:
     atomic_write_text(run_dir / EVALUATIONS_FILE, evaluations_to_csv(result.evaluations))
     if result.log:  # runs on Ray return their log; local runs wrote it in place
         atomic_write_text(run_dir / LOG_FILE, result.log)
+    if result.visited_goals is not None:
+        buffer = io.BytesIO()
+        np.save(buffer, result.visited_goals)
+        atomic_write_bytes(run_dir / VISITED_FILE, buffer.getvalue())
     record = {
         "status": result.status,
         "wall_time_s": result.wall_time_s,
