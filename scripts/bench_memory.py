@@ -10,7 +10,9 @@ load; on an idle machine both agree.
    (``update_episode``), with Gaussian keys (the hardest case for a KD-tree) and 10% of the episode
    far enough from the table to be added.
 2. MFEC action selection on MinAtar (Breakout: 3 actions, Seaquest: 6) with ``rows_per_action``
-   rows per action and 8-dim projected keys: median microseconds per env step for ``policy.act``.
+   rows per action and 8-dim projected keys: median microseconds per env step for ``policy.act``,
+   for states seen before (exact hash hits, the common case in MinAtar) and unseen ones (kNN search
+   in every action table).
    The tables are filled with the projected keys of real observations from random play plus
    copies of them jittered by 1% of the key scale (random play visits only a few thousand
    distinct states, far fewer than 1e5).
@@ -18,7 +20,7 @@ load; on an idle machine both agree.
    with ``rows`` rows (real states of random play, jittered), and MFEC on ``MinAtar/Breakout-v1``,
    next to the raw env's random-action steps/s measured in the same run.
 
-Usage: ``python scripts/bench_memory.py [--quick]`` (``--quick``: smaller sizes, for a smoke test).
+Usage: ``python scripts/bench_memory.py [--quick] [--tables cec mfec e2e]`` (``--quick``: smaller sizes).
 """
 
 from __future__ import annotations
@@ -127,7 +129,9 @@ def jittered(keys: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
 
 def table_mfec_selection(rows_per_action: int, steps: int) -> None:
     print(f"\n## MFEC action selection, {rows_per_action} rows per action, 8-dim keys (median us / env step)")
-    print(f"{'env':>22} {'actions':>7} {'distinct real states':>20} {'act CPU us':>10}")
+    print("(real: queries are states of random play, stored exactly -> hash hits; unseen: the same states")
+    print(" jittered, so every action table runs the exact kNN search)")
+    print(f"{'env':>22} {'actions':>7} {'distinct real states':>20} {'real us':>8} {'unseen us':>10}")
     rng = np.random.default_rng(0)
     for env_id in ("MinAtar/Breakout-v1", "MinAtar/Seaquest-v1"):
         model = MFEC("MFECPolicy", gym.make(env_id), capacity_per_action=rows_per_action, seed=0)
@@ -146,8 +150,10 @@ def table_mfec_selection(rows_per_action: int, steps: int) -> None:
         queries = real[rng.integers(len(real), size=steps)]
         policy.act(queries[:1])
         act = median_us(policy.act, queries)
+        unseen = queries + 0.01 * real.std(axis=0) * rng.standard_normal(queries.shape).astype(np.float32)
+        act_unseen = median_us(policy.act, unseen)
         n_actions = policy.action_space.n
-        print(f"{env_id:>22} {n_actions:>7} {len(np.unique(real, axis=0)):>20} {act:>10.1f}")
+        print(f"{env_id:>22} {n_actions:>7} {len(np.unique(real, axis=0)):>20} {act:>8.1f} {act_unseen:>10.1f}")
 
 
 def raw_steps_per_second(env_id: str, n_steps: int) -> tuple[float, float]:
@@ -186,15 +192,17 @@ def table_end_to_end(rows: int, steps: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="small sizes (smoke test)")
+    parser.add_argument("--tables", nargs="+", default=["cec", "mfec", "e2e"], choices=["cec", "mfec", "e2e"])
     args = parser.parse_args()
-    if args.quick:
-        table_cec_memory([1_000, 10_000], [3, 8], queries=200)
-        table_mfec_selection(10_000, steps=300)
-        table_end_to_end(10_000, steps=2_000)
-    else:
-        table_cec_memory([1_000, 10_000, 100_000, 1_000_000], [3, 8, 64], queries=500)
-        table_mfec_selection(100_000, steps=2_000)
-        table_end_to_end(100_000, steps=20_000)
+    if "cec" in args.tables:
+        if args.quick:
+            table_cec_memory([1_000, 10_000], [3, 8], queries=200)
+        else:
+            table_cec_memory([1_000, 10_000, 100_000, 1_000_000], [3, 8, 64], queries=500)
+    if "mfec" in args.tables:
+        table_mfec_selection(10_000 if args.quick else 100_000, steps=300 if args.quick else 2_000)
+    if "e2e" in args.tables:
+        table_end_to_end(10_000 if args.quick else 100_000, steps=2_000 if args.quick else 20_000)
 
 
 if __name__ == "__main__":
