@@ -54,21 +54,84 @@ def test_our_algorithm_without_config_names_the_fix(tmp_path: Path, monkeypatch:
 
 
 def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(args, cwd=cwd, capture_output=True, text=True, timeout=300)
+    return subprocess.run(args, cwd=cwd, capture_output=True, text=True, timeout=600)
 
 
 def test_plain_rl_zoo3_train_with_gym_packages(tmp_path: Path) -> None:
-    """Stock `rl_zoo3 train` (console command) on one of our envs with a stock algorithm's YAML."""
-    config = tmp_path / "sac.yml"
-    config.write_text(
-        "Pendulum-v1:\n  n_timesteps: 200\n  policy: MlpPolicy\n  learning_starts: 100\n"
-        "  policy_kwargs: 'dict(net_arch=[8])'\n"
-    )
+    """Stock `rl_zoo3 train` (console command) on one of our envs with a stock algorithm's zoo config."""
     zoo = Path(sys.executable).with_name("rl_zoo3")
     result = _run(
-        [str(zoo), "train", "--algo", "sac", "--env", "Pendulum-v1", "--gym-packages", "sb3_gcrl",
-         "-conf", str(config), "-f", str(tmp_path / "logs"), "--eval-freq", "-1"],
+        [
+            str(zoo),
+            "train",
+            "--algo",
+            "sac",
+            "--env",
+            "GCRL/GrowingTree-v0",
+            "--gym-packages",
+            "sb3_gcrl",
+            "-conf",
+            str(ZOO_CONFIGS_DIR / "sac_ch4.yml"),
+            "-n",
+            "150",
+            "--hyperparams",
+            "learning_starts:50",
+            "policy_kwargs:dict(net_arch=[8])",
+            "-f",
+            str(tmp_path / "logs"),
+            "--eval-freq",
+            "-1",
+        ],
         cwd=tmp_path,
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    assert (tmp_path / "logs" / "sac" / "Pendulum-v1_1" / "Pendulum-v1.zip").is_file()
+    assert (tmp_path / "logs" / "sac" / "GCRL-GrowingTree-v0_1" / "GCRL-GrowingTree-v0.zip").is_file()
+
+
+def test_sb3_gcrl_train_then_enjoy_our_algorithm(tmp_path: Path) -> None:
+    """`sb3-gcrl train --algo cec` reads zoo_configs/cec.yml by default; `sb3-gcrl enjoy` loads the result."""
+    logs = tmp_path / "logs"
+    result = _run(
+        [
+            sys.executable,
+            "-m",
+            "sb3_gcrl",
+            "train",
+            "--algo",
+            "cec",
+            "--env",
+            "GCRL/GrowingTree-v0",
+            "-n",
+            "400",
+            "-f",
+            str(logs),
+            "--eval-freq",
+            "-1",
+            "--seed",
+            "3",
+        ],
+        cwd=tmp_path,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    run_dir = logs / "cec" / "GCRL-GrowingTree-v0_1"
+    assert (run_dir / "GCRL-GrowingTree-v0.zip").is_file()
+    assert "distance_threshold" in (run_dir / "GCRL-GrowingTree-v0" / "config.yml").read_text()
+    result = _run(
+        [
+            sys.executable,
+            "-m",
+            "sb3_gcrl",
+            "enjoy",
+            "--algo",
+            "cec",
+            "--env",
+            "GCRL/GrowingTree-v0",
+            "-f",
+            str(logs),
+            "--no-render",
+            "-n",
+            "50",
+        ],
+        cwd=tmp_path,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
