@@ -152,7 +152,9 @@ def _summary_row(name: str, runs: list[dict[str, np.ndarray]], fractions: tuple[
     for fraction in fractions:
         i = max(int(round(fraction * n)) - 1, 0)
         cells.append(f"{np.median(curves[:, i]):8.2f} [{curves[:, i].min():7.2f},{curves[:, i].max():7.2f}]")
-    return f"{name:6s} " + " ".join(cells) + f"   (n={len(runs)})"
+    early = np.median(curves[:, : max(int(0.3 * n), 1)].mean(axis=1))
+    late = np.median(curves[:, -max(int(0.2 * n), 1) :].mean(axis=1))
+    return f"{name:6s} " + " ".join(cells) + f"   early {early:7.2f}  late {late:7.2f}   (n={len(runs)})"
 
 
 def report(args: argparse.Namespace) -> None:
@@ -173,7 +175,9 @@ def report(args: argparse.Namespace) -> None:
             continue
         steps = next(iter(results.values()))[0]["steps"]
         header = " ".join(f"{'@' + str(int(steps[max(int(round(f * len(steps))) - 1, 0)])):>25s}" for f in fractions)
-        print(f"\n== {task}: evaluation return, median [min, max] over seeds ==\n{'agent':6s} {header}")
+        print(f"\n== {task}: evaluation return, median [min, max] over seeds ==")
+        print("(early / late: median over seeds of the mean evaluation return over the first 30% / last 20% of training)")
+        print(f"{'agent':6s} {header}")
         for agent, runs in results.items():
             print(_summary_row(agent, runs, fractions))
         if task == "windygrid":
