@@ -176,7 +176,7 @@ def report(args: argparse.Namespace) -> None:
         steps = next(iter(results.values()))[0]["steps"]
         header = " ".join(f"{'@' + str(int(steps[max(int(round(f * len(steps))) - 1, 0)])):>25s}" for f in fractions)
         print(f"\n== {task}: evaluation return, median [min, max] over seeds ==")
-        print("(early / late: median over seeds of the mean evaluation return over the first 30% / last 20% of training)")
+        print("(early / late: median over seeds of the mean return over the first 30% / last 20% of training)")
         print(f"{'agent':6s} {header}")
         for agent, runs in results.items():
             print(_summary_row(agent, runs, fractions))
