@@ -86,12 +86,13 @@ class FarTaskGoals(LineGoalEnv):
 
 
 def filled_buffer(alpha: float, n_envs: int = 2) -> TaskRelevantHerReplayBuffer:
-    env = make_vec_env(
-        FarTaskGoals,
-        n_envs=n_envs,
-        seed=0,
-        wrapper_class=lambda e: GoalCommandWrapper(ResetFreeWrapper(e, eval_horizon=10)),
-    )
+    def make_env() -> gym.Env:
+        return gym.wrappers.TimeLimit(FarTaskGoals(), max_episode_steps=10)  # the limit Monitor sees
+
+    def wrap(env: gym.Env) -> gym.Env:
+        return GoalCommandWrapper(ResetFreeWrapper(env, eval_horizon=10))
+
+    env = make_vec_env(make_env, n_envs=n_envs, seed=0, wrapper_class=wrap)
     model = SAC(
         "MultiInputPolicy",
         env,

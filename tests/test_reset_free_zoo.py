@@ -59,3 +59,31 @@ def test_every_config_trains_briefly(config: Path, tmp_path: Path) -> None:
     evaluations = np.load(run / "evaluations.npz")
     assert np.all(evaluations["ep_lengths"] == 300)
     assert (run / f"{ENV_ID.replace('/', '-')}.zip").exists()
+
+
+ALL_CONFIGS = sorted((REPO / "zoo_configs").glob("reset_free_*.yml"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("config", ALL_CONFIGS, ids=[path.stem for path in ALL_CONFIGS])
+def test_every_config_builds_its_wrapped_env(config: Path) -> None:
+    """Each task's config: the env_wrapper chain RL-Zoo builds accepts its kwargs and runs reset-free."""
+    import gymnasium as gym
+    from rl_zoo3.utils import get_wrapper_class
+
+    import sb3_gcrl  # noqa: F401 (registers GCRL/ envs)
+
+    ((env_id, hyperparams),) = yaml.safe_load(config.read_text()).items()
+    wrapper = get_wrapper_class(hyperparams)
+    env = gym.make(env_id)
+    env = wrapper(env) if wrapper is not None else env
+    env.reset(seed=0)
+    if hasattr(env, "enable_reset_free"):
+        env.enable_reset_free()
+    env.action_space.seed(0)
+    for _ in range(60):
+        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        assert "is_success" in info
+        if terminated or truncated:
+            env.reset()
+    env.close()
