@@ -525,3 +525,16 @@ def test_tabular_wrapper_bad_input() -> None:
         env.step(5)
     with pytest.raises(ValueError, match="layout_seed must be a non-negative integer"):
         gym.make("GCRL/LavaGapTabular-v0", layout_seed=-1)
+
+
+@pytest.mark.parametrize("env_id", ["GCRL/GrowingTree-v0", "GCRL/GrowingTreeGoal-v0", "GCRL/WindyGrid-v0"])
+def test_rgb_array_rendering_so_sb3_accepts_the_env_id(env_id: str) -> None:
+    """SB3 makes string env ids with render_mode="rgb_array" (falling back only on TypeError)."""
+    env = gym.make(env_id, render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+    env.step(env.action_space.sample())
+    assert not np.array_equal(frame, env.render()) or env_id == "GCRL/WindyGrid-v0"
+    with pytest.raises(ValueError, match="render_mode must be None, 'ansi' or 'rgb_array'"):
+        gym.make(env_id, render_mode="sketch")

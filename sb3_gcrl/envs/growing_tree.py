@@ -50,10 +50,11 @@ class GrowingTreeEnv(gym.Env):
     :param start_height: height at reset.
     :param final_reward: reward on success.
     :param terminate_at_goal: end the episode on success.
-    :param render_mode: ``None`` or ``"ansi"``.
+    :param render_mode: ``None``, ``"ansi"`` (text) or ``"rgb_array"`` (the tree as a green bar, the target
+        as a red line; SB3 asks for it when given an env id).
     """
 
-    metadata = {"render_modes": ["ansi"], "render_fps": 10}
+    metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 10}
 
     def __init__(
         self,
@@ -69,8 +70,8 @@ class GrowingTreeEnv(gym.Env):
                 raise ValueError(f"{name} must lie in [-2, 2], got {value}.")
         if tolerance <= _BOUNDARY_MARGIN:
             raise ValueError(f"tolerance must be positive (> {_BOUNDARY_MARGIN}), got {tolerance}.")
-        if render_mode not in (None, "ansi"):
-            raise ValueError(f"render_mode must be None or 'ansi', got {render_mode!r}.")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be None, 'ansi' or 'rgb_array', got {render_mode!r}.")
         self.goal = float(goal)
         self.tolerance = float(tolerance)
         self.start_height = float(start_height)
@@ -112,10 +113,21 @@ class GrowingTreeEnv(gym.Env):
         reward = self.final_reward if success else 0.0
         return self._observation(), reward, success and self.terminate_at_goal, False, {"is_success": success}
 
-    def render(self) -> str | None:
-        if self.render_mode != "ansi":
-            return None
-        return f"height={self.height:+.3f} target={self.target:+.3f}\n"
+    def render(self) -> str | np.ndarray | None:
+        if self.render_mode == "ansi":
+            return f"height={self.height:+.3f} target={self.target:+.3f}\n"
+        if self.render_mode == "rgb_array":
+            pixels_per_unit = 50  # 200 px for the height range [-2, 2]
+            image = np.full((4 * pixels_per_unit, 60, 3), 255, dtype=np.uint8)
+
+            def row_of(height: float) -> int:
+                return int(round((HEIGHT_LIMIT - height) * pixels_per_unit))
+
+            image[min(row_of(self.height), image.shape[0] - 1) :, 20:40] = (34, 139, 34)
+            target_row = min(row_of(self.target), image.shape[0] - 1)
+            image[max(target_row - 1, 0) : target_row + 1, :] = (220, 20, 60)
+            return image
+        return None
 
 
 class GrowingTreeGoalEnv(GrowingTreeEnv):

@@ -73,10 +73,11 @@ class WindyGridEnv(gym.Env[np.int64, np.int64]):
     :param wind_probability: probability that the wind in column 6 pushes the agent one row up.
     :param trap_reward: reward for entering the trap (replaces the -1 step reward; the episode ends).
     :param step_reward: reward of every other step, including the one that enters the goal.
-    :param render_mode: ``None`` or ``"ansi"`` (a text picture of the grid).
+    :param render_mode: ``None``, ``"ansi"`` (a text picture of the grid) or ``"rgb_array"`` (20 px cells:
+        wind column blue, trap red, goal gold, agent black; SB3 asks for it when given an env id).
     """
 
-    metadata = {"render_modes": ["ansi"], "render_fps": 4}
+    metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 4}
 
     def __init__(
         self,
@@ -88,7 +89,7 @@ class WindyGridEnv(gym.Env[np.int64, np.int64]):
         if not 0.0 <= wind_probability <= 1.0:
             raise ValueError(f"wind_probability must lie in [0, 1], got {wind_probability}.")
         if render_mode not in (None, *self.metadata["render_modes"]):
-            raise ValueError(f"render_mode must be None or 'ansi', got {render_mode!r}.")
+            raise ValueError(f"render_mode must be None, 'ansi' or 'rgb_array', got {render_mode!r}.")
         self.wind_probability = float(wind_probability)
         self.trap_reward = float(trap_reward)
         self.step_reward = float(step_reward)
@@ -130,7 +131,17 @@ class WindyGridEnv(gym.Env[np.int64, np.int64]):
         reward, terminated = self._outcome(state)
         return np.int64(state), reward, terminated, False, {"gust": gust, "is_success": state == self.goal_state}
 
-    def render(self) -> str | None:
+    def render(self) -> str | np.ndarray | None:
+        if self.render_mode == "rgb_array":
+            cell = 20
+            image = np.full((N_ROWS * cell, N_COLS * cell, 3), 255, dtype=np.uint8)
+            image[:, WIND_COLUMN * cell : (WIND_COLUMN + 1) * cell] = (173, 216, 230)
+            for (row, col), colour in ((TRAP_CELL, (220, 20, 60)), (GOAL_CELL, (255, 215, 0))):
+                image[row * cell : (row + 1) * cell, col * cell : (col + 1) * cell] = colour
+            row, col = int(self._cell[0]), int(self._cell[1])
+            image[row * cell + 5 : (row + 1) * cell - 5, col * cell + 5 : (col + 1) * cell - 5] = 0
+            image[::cell, :] = image[:, ::cell] = 128  # grid lines
+            return image
         if self.render_mode != "ansi":
             return None
         rows = []
