@@ -102,8 +102,6 @@ class CEC(EpisodicControlAlgorithm):
         self.n_neighbors = n_neighbors
         self.temperature = temperature
         self.noise_std = noise_std
-        self.knn_backend = knn_backend
-        self.rebuild_threshold = rebuild_threshold
         super().__init__(
             policy,
             env,
@@ -113,6 +111,8 @@ class CEC(EpisodicControlAlgorithm):
             exploration_fraction=exploration_fraction,
             projection_dim=projection_dim,
             observation_keys=observation_keys,
+            knn_backend=knn_backend,
+            rebuild_threshold=rebuild_threshold,
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
             policy_kwargs=policy_kwargs,
@@ -141,8 +141,6 @@ class CEC(EpisodicControlAlgorithm):
             n_neighbors=self.n_neighbors,
             temperature=self.temperature,
             noise_std=self.noise_std,
-            knn_backend=self.knn_backend,
-            rebuild_threshold=self.rebuild_threshold,
         )
 
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:

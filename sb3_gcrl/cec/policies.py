@@ -56,12 +56,12 @@ class CECPolicy(EpisodicControlPolicy):
         observation_keys: Sequence[str] | None = None,
         seed: int | None = None,
     ) -> None:
-        super().__init__(observation_space, action_space, projection_dim, observation_keys, seed)
+        super().__init__(
+            observation_space, action_space, projection_dim, observation_keys, seed, knn_backend, rebuild_threshold
+        )
         if not noise_std >= 0:
             raise ValueError(f"noise_std (sigma) must be >= 0, got {noise_std}")
         self.noise_std = float(noise_std)
-        self.knn_backend = knn_backend
-        self.rebuild_threshold = rebuild_threshold
         self.memory = CECMemory(
             key_dim=self.embedding.key_dim,
             action_dim=int(np.prod(action_space.shape)),
@@ -103,8 +103,6 @@ class CECPolicy(EpisodicControlPolicy):
             n_neighbors=memory.n_neighbors,
             temperature=memory.temperature,
             noise_std=self.noise_std,
-            knn_backend=self.knn_backend,
-            rebuild_threshold=self.rebuild_threshold,
         )
         return data
 

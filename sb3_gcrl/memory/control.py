@@ -29,6 +29,7 @@ from stable_baselines3.common.utils import LinearSchedule, is_vectorized_observa
 
 from sb3_gcrl.memory.embedding import KeyEmbedding
 from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
+from sb3_gcrl.memory.knn import KNNBackend
 
 SelfEpisodicControlAlgorithm = TypeVar("SelfEpisodicControlAlgorithm", bound="EpisodicControlAlgorithm")
 
@@ -49,6 +50,8 @@ class EpisodicControlPolicy(BasePolicy):
     :param observation_keys: Dict observation keys used for the key, in order (default
         ``("observation", "desired_goal")`` for goal envs).
     :param seed: seed of the projection matrix and of the policy's action-sampling generator.
+    :param knn_backend: kNN backend of the memory (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
+    :param rebuild_threshold: KD-tree rebuild threshold of the memory (``None``: automatic).
     """
 
     def __init__(
@@ -58,11 +61,15 @@ class EpisodicControlPolicy(BasePolicy):
         projection_dim: int | None = None,
         observation_keys: Sequence[str] | None = None,
         seed: int | None = None,
+        knn_backend: KNNBackend = "auto",
+        rebuild_threshold: int | None = None,
     ) -> None:
         super().__init__(observation_space, action_space)
         self.projection_dim = projection_dim
         self.observation_keys = None if observation_keys is None else tuple(observation_keys)
         self.seed = seed
+        self.knn_backend = knn_backend
+        self.rebuild_threshold = rebuild_threshold
         self.embedding = KeyEmbedding(observation_space, projection_dim, seed, self.observation_keys)
         self.rng = np.random.default_rng(seed)
         #: probability of exploring (epsilon), set by the algorithm's schedule during training
@@ -129,7 +136,13 @@ class EpisodicControlPolicy(BasePolicy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        data.update(projection_dim=self.projection_dim, observation_keys=self.observation_keys, seed=self.seed)
+        data.update(
+            projection_dim=self.projection_dim,
+            observation_keys=self.observation_keys,
+            seed=self.seed,
+            knn_backend=self.knn_backend,
+            rebuild_threshold=self.rebuild_threshold,
+        )
         return data
 
 
@@ -147,6 +160,8 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
     :param exploration_fraction: fraction of the training budget over which epsilon decays linearly.
     :param projection_dim: random-projection dimension of the keys (``None``: raw observations).
     :param observation_keys: Dict observation keys concatenated into the key, in order.
+    :param knn_backend: ``"auto"``, ``"kdtree"`` or ``"flat"`` (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
+    :param rebuild_threshold: KD-tree rebuild threshold (``None``: automatic).
     :param stats_window_size: episodes averaged in the rollout logs.
     :param tensorboard_log: tensorboard log folder.
     :param policy_kwargs: extra policy arguments.
@@ -168,6 +183,8 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
         exploration_fraction: float = 0.1,
         projection_dim: int | None = None,
         observation_keys: Sequence[str] | None = None,
+        knn_backend: KNNBackend = "auto",
+        rebuild_threshold: int | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -206,6 +223,8 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
         self.exploration_fraction = exploration_fraction
         self.projection_dim = projection_dim
         self.observation_keys = None if observation_keys is None else list(observation_keys)
+        self.knn_backend = knn_backend
+        self.rebuild_threshold = rebuild_threshold
         if self.env is not None:
             self._check_spaces(self.observation_space, self.action_space)
         if _init_setup_model:
@@ -218,7 +237,7 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
 
     @abstractmethod
     def _policy_memory_kwargs(self) -> dict[str, Any]:
-        """Memory hyperparameters passed to the policy constructor."""
+        """Memory hyperparameters passed to the policy constructor (besides the kNN backend)."""
 
     @abstractmethod
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
@@ -236,6 +255,8 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
             projection_dim=self.projection_dim,
             observation_keys=self.observation_keys,
             seed=self.seed,
+            knn_backend=self.knn_backend,
+            rebuild_threshold=self.rebuild_threshold,
             **self._policy_memory_kwargs(),
         )
         kwargs.update(self.policy_kwargs)

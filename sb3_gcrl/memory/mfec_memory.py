@@ -20,6 +20,15 @@ from sb3_gcrl.memory.knn import KNNBackend, KNNIndex
 from sb3_gcrl.memory.recency import RecencyOrder
 
 
+def argmax_random_ties(q: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
+    """Row-wise ``argmax`` of ``q`` ``(n, n_actions)``; ties (e.g. several untried actions at ``+inf``) are
+    broken uniformly at random with ``rng``, or by lowest index when ``rng`` is None."""
+    if rng is None:
+        return q.argmax(axis=1)
+    ties = q == q.max(axis=1, keepdims=True)
+    return (rng.random(q.shape) * ties).argmax(axis=1)
+
+
 class MFECTable:
     """The value table ``Q_ec(., a)`` of one action.
 
@@ -172,11 +181,7 @@ class MFECMemory:
     def greedy_actions(self, keys: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
         """``argmax_a Q_ec(s, a)``; ties (e.g. several untried actions at ``+inf``) are broken uniformly
         at random with ``rng``, or by lowest index when ``rng`` is None."""
-        q = self.estimate(keys)
-        if rng is None:
-            return q.argmax(axis=1)
-        ties = q == q.max(axis=1, keepdims=True)
-        return (rng.random(q.shape) * ties).argmax(axis=1)
+        return argmax_random_ties(self.estimate(keys), rng)
 
     def update_episode(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> int:
         """Eq. 5.2 for every step of a finished episode.

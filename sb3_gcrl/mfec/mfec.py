@@ -82,8 +82,6 @@ class MFEC(EpisodicControlAlgorithm):
     ) -> None:
         self.capacity_per_action = int(capacity_per_action)
         self.n_neighbors = n_neighbors
-        self.knn_backend = knn_backend
-        self.rebuild_threshold = rebuild_threshold
         super().__init__(
             policy,
             env,
@@ -93,6 +91,8 @@ class MFEC(EpisodicControlAlgorithm):
             exploration_fraction=exploration_fraction,
             projection_dim=projection_dim,
             observation_keys=observation_keys,
+            knn_backend=knn_backend,
+            rebuild_threshold=rebuild_threshold,
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
             policy_kwargs=policy_kwargs,
@@ -112,8 +112,6 @@ class MFEC(EpisodicControlAlgorithm):
         return dict(
             capacity_per_action=self.capacity_per_action,
             n_neighbors=self.n_neighbors,
-            knn_backend=self.knn_backend,
-            rebuild_threshold=self.rebuild_threshold,
         )
 
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:

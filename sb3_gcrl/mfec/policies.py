@@ -10,7 +10,7 @@ from gymnasium import spaces
 
 from sb3_gcrl.memory.control import EpisodicControlPolicy
 from sb3_gcrl.memory.knn import KNNBackend
-from sb3_gcrl.memory.mfec_memory import MFECMemory
+from sb3_gcrl.memory.mfec_memory import MFECMemory, argmax_random_ties
 
 
 class MFECPolicy(EpisodicControlPolicy):
@@ -46,9 +46,9 @@ class MFECPolicy(EpisodicControlPolicy):
         observation_keys: Sequence[str] | None = None,
         seed: int | None = None,
     ) -> None:
-        super().__init__(observation_space, action_space, projection_dim, observation_keys, seed)
-        self.knn_backend = knn_backend
-        self.rebuild_threshold = rebuild_threshold
+        super().__init__(
+            observation_space, action_space, projection_dim, observation_keys, seed, knn_backend, rebuild_threshold
+        )
         self.memory = MFECMemory(
             key_dim=self.embedding.key_dim,
             n_actions=int(action_space.n),
@@ -67,11 +67,8 @@ class MFECPolicy(EpisodicControlPolicy):
         """Actions ``(n,)`` and the mask of queries whose chosen action had a finite estimate."""
         q = self.memory.estimate(keys)
         n, n_actions = q.shape
-        if deterministic:
-            actions = q.argmax(axis=1)
-        else:
-            ties = q == q.max(axis=1, keepdims=True)
-            actions = (self.rng.random(q.shape) * ties).argmax(axis=1)
+        actions = argmax_random_ties(q, None if deterministic else self.rng)
+        if not deterministic:
             explore = self.rng.random(n) < self.exploration_rate
             if explore.any():
                 actions[explore] = self.rng.integers(n_actions, size=int(explore.sum()))
@@ -83,8 +80,6 @@ class MFECPolicy(EpisodicControlPolicy):
         data.update(
             capacity_per_action=self.memory.capacity_per_action,
             n_neighbors=self.memory.n_neighbors,
-            knn_backend=self.knn_backend,
-            rebuild_threshold=self.rebuild_threshold,
         )
         return data
 
