@@ -30,7 +30,7 @@ import numpy as np
 
 from sb3_gcrl.goals.goal_space import BinnedGoalSpace
 from sb3_gcrl.goals.schedulers import GoalScheduler
-from sb3_gcrl.post_exploration.rules import PostExplorationRule, make_post_exploration_rule
+from sb3_gcrl.post_exploration.rules import NoveltyAdaptive, PostExplorationRule, make_post_exploration_rule
 from sb3_gcrl.wrappers.go_explore import EXECUTED_ACTION_KEY
 from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
 
@@ -88,7 +88,7 @@ class PostExplorationWrapper(GoalCommandWrapper):
         self.rule = rule
         self.post_exploration = bool(post_exploration)
         self.goal_space: BinnedGoalSpace | None = getattr(self.scheduler, "goal_space", None)
-        if self.goal_space is None and type(rule).__name__ == "NoveltyAdaptive":
+        if self.goal_space is None and isinstance(rule, NoveltyAdaptive):
             raise ValueError(
                 "adaptive post-exploration needs visit counts: use a visited-goal scheduler ('novelty' or "
                 "'uniform_visited' with goal_low/goal_high/n_bins)"
