@@ -14,6 +14,17 @@ import numpy as np
 import pandas as pd
 from scipy.integrate import trapezoid
 
+from sb3_gcrl.post_exploration.metrics import visitation_entropy  # Eq. 6.7, re-exported for the reports
+
+__all__ = [
+    "SCORE_COLUMNS",
+    "aggregate_scores",
+    "iqm_with_ci",
+    "probability_of_improvement",
+    "run_scores",
+    "visitation_entropy",
+]
+
 SCORE_COLUMNS: tuple[str, ...] = ("final", "auc")
 
 
@@ -151,19 +162,3 @@ def probability_of_improvement(scores_x: np.ndarray, scores_y: np.ndarray) -> fl
     x = np.asarray(scores_x, dtype=np.float64)[:, None]
     y = np.asarray(scores_y, dtype=np.float64)[None, :]
     return float(np.mean((x > y) + 0.5 * (x == y)))
-
-
-def visitation_entropy(counts: np.ndarray) -> float:
-    """Entropy of the state-visitation distribution over bins, Eq. 6.7: -sum_i p(x_i) log p(x_i).
-
-    :param counts: visits per bin (any shape), ``p(x_i) = n(x_i) / sum_j n(x_j)``.
-    :return: entropy in nats (0 for no visits).
-    """
-    counts = np.asarray(counts, dtype=np.float64).ravel()
-    if np.any(counts < 0) or not np.all(np.isfinite(counts)):
-        raise ValueError("counts must be finite and non-negative")
-    total = counts.sum()
-    if total == 0:
-        return 0.0
-    p = counts[counts > 0] / total
-    return float(-(p * np.log(p)).sum())
