@@ -1,10 +1,13 @@
 """Episodic memory backend: exact kNN, LRU order, embeddings, CEC (Eq. 4.3-4.5) and MFEC (Eq. 5.2) rules."""
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium import spaces
 from scipy import stats
+from stable_baselines3.common.vec_env import DummyVecEnv
 
+from sb3_gcrl import CEC, MFEC
 from sb3_gcrl.memory import (
     CECMemory,
     EpisodeBuffers,
@@ -283,3 +286,47 @@ def test_cec_batched_episode_update_equals_sequential_updates(capacity):
         assert counts == {name: outcomes.count(name) for name in counts}
         for name in ("keys", "actions", "values", "last_update"):
             np.testing.assert_array_equal(batched.state_dict()[name], sequential.state_dict()[name])
+
+
+# ---------------------------------------------------------------- learn loop (EpisodicControlAlgorithm)
+class _CountingEnv(gym.Env):
+    """Observation ``10 * env_id + t``, reward ``t``; env 0 terminates after 3 steps, env 1 is truncated after 5."""
+
+    def __init__(self, env_id: int, discrete: bool) -> None:
+        self.observation_space = spaces.Box(0, 100, (1,), np.float32)
+        self.action_space = spaces.Discrete(2) if discrete else spaces.Box(-1, 1, (1,), np.float32)
+        self.env_id, self.length, self.t = env_id, 3 + 2 * env_id, 0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return np.array([10 * self.env_id], np.float32), {}
+
+    def step(self, action):
+        self.t += 1
+        end = self.t >= self.length
+        obs = np.array([10 * self.env_id + self.t], np.float32)
+        return obs, float(self.t), end and self.env_id == 0, end and self.env_id == 1, {}
+
+
+@pytest.mark.parametrize("algo", [CEC, MFEC])
+def test_learn_loop_updates_memory_with_each_envs_whole_episode(algo):
+    """n_envs=2 with different episode lengths, termination and truncation: every memory update gets exactly
+    one env's episode, from its reset observation to its last step, with its own discounted returns."""
+    venv = DummyVecEnv([lambda i=i: _CountingEnv(i, discrete=algo is MFEC) for i in range(2)])
+    model = algo("MlpPolicy", venv, gamma=0.5, projection_dim=None, seed=0)
+    episodes = []
+    update_memory = model._update_memory
+
+    def record(keys, actions, returns):
+        episodes.append((keys[:, 0].copy(), returns.copy()))
+        return update_memory(keys, actions, returns)
+
+    model._update_memory = record
+    model.learn(30, log_interval=None)
+    assert len(episodes) == 30 // 2 // 3 + 30 // 2 // 5  # 5 episodes of env 0, 3 of env 1
+    for keys, returns in episodes:
+        env_id = int(keys[0]) // 10
+        length = 3 + 2 * env_id
+        np.testing.assert_array_equal(keys, 10 * env_id + np.arange(length))
+        np.testing.assert_allclose(returns, discounted_returns(np.arange(1.0, length + 1), 0.5))
