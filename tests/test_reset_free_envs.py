@@ -553,3 +553,29 @@ def test_pick_and_place_hard_is_solvable_by_a_scripted_grasp():
         assert info["is_success"] and reward == 0.0, seed
         assert obs["achieved_goal"][2] > env.height_offset + 0.05  # really lifted
     env.close()
+
+
+COMMANDABLE_IDS = [
+    "GCRL/ResetFreeAntArena-v0",
+    "GCRL/Tabletop-v0",
+    pytest.param("GCRL/SawyerDoor-v0", marks=needs_metaworld),
+]
+
+
+@pytest.mark.parametrize("env_id", COMMANDABLE_IDS)
+def test_reset_goal_option_commands_the_goal_and_unknown_options_raise(envs, env_id):
+    """``reset(options={"goal": g})`` (as evaluate_all_goals sends it) sets the desired goal instead of being
+    silently ignored; other options and malformed goals raise."""
+    env = get_env(envs, env_id).unwrapped
+    space = env.observation_space["desired_goal"]
+    goal = env.sample_evaluation_goal(np.random.default_rng(7)) + 0.05
+    obs, _ = env.reset(seed=0, options={"goal": goal})
+    np.testing.assert_allclose(obs["desired_goal"], goal.astype(space.dtype))
+    assert obs["desired_goal"].dtype == space.dtype
+    obs, reward, *_ = env.step(np.zeros(env.action_space.shape))
+    np.testing.assert_allclose(obs["desired_goal"], goal.astype(space.dtype))
+    assert reward == pytest.approx(float(env.compute_reward(obs["achieved_goal"], obs["desired_goal"], None)))
+    with pytest.raises(ValueError, match="accepts only 'goal'"):
+        env.reset(options={"start": goal})
+    with pytest.raises(ValueError, match="finite array of shape"):
+        env.reset(options={"goal": np.append(goal, 0.0)})

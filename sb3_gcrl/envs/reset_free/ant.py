@@ -29,6 +29,8 @@ from gymnasium.utils import EzPickle
 from gymnasium_robotics.envs.maze.ant_maze_v5 import AntMazeEnv
 from gymnasium_robotics.envs.maze.maze_v4 import MazeEnv
 
+from sb3_gcrl.envs.reset_free.reset_options import commanded_goal
+
 #: Evaluation episode length (steps), thesis Section 3.7.1.
 EVAL_HORIZON = 500
 #: Physical (hard) reset interval of reset-free training, thesis Section 3.7.1.
@@ -92,7 +94,8 @@ class ResetFreeAntArenaEnv(AntMazeEnv):
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         # Replaces MazeEnv's cell-based start/goal sampling with rho_0 / rho_g*; the rest is AntMaze's reset.
         super(MazeEnv, self).reset(seed=seed)  # GoalEnv.reset: seeds self.np_random, checks the spaces
-        self.goal = self.sample_evaluation_goal(self.np_random)
+        goal = commanded_goal(options, self.observation_space["desired_goal"], "ResetFreeAntArena")
+        self.goal = self.sample_evaluation_goal(self.np_random) if goal is None else goal
         self.reset_pos = self.sample_initial_goal(self.np_random)
         self.update_target_site_pos()
         self.ant_env.init_qpos[:2] = self.reset_pos

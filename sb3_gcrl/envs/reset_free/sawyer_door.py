@@ -30,6 +30,8 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium_robotics.core import GoalEnv
 
+from sb3_gcrl.envs.reset_free.reset_options import commanded_goal
+
 #: Evaluation episode length (steps), EARL / thesis Section 3.7.1.
 EVAL_HORIZON = 300
 #: Physical (hard) reset interval of reset-free training (EARL ``train_horizon`` for sawyer door).
@@ -142,7 +144,8 @@ class SawyerDoorEnv(GoalEnv):
         super().reset(seed=seed)
         self._sim.reset()  # metaworld's reset: arm to HAND_START (50 sim steps), door placed, fully open
         self._sim._set_obj_xyz(np.array(DOOR_START_ANGLE + self.np_random.uniform(0.0, DOOR_START_NOISE)))
-        self.goal = self.sample_evaluation_goal(self.np_random)
+        goal = commanded_goal(options, self.observation_space["desired_goal"], "SawyerDoor")
+        self.goal = self.sample_evaluation_goal(self.np_random) if goal is None else goal
         obs = self._get_obs()
         return obs, {"is_success": bool(self.compute_reward(obs["achieved_goal"], self.goal, None) > 0)}
 

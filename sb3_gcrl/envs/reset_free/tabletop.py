@@ -33,6 +33,8 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium_robotics.core import GoalEnv
 
+from sb3_gcrl.envs.reset_free.reset_options import commanded_goal
+
 #: Evaluation episode length (steps), EARL / thesis Section 3.7.1.
 EVAL_HORIZON = 200
 #: Physical (hard) reset interval of reset-free training (EARL ``train_horizon`` for tabletop).
@@ -128,7 +130,8 @@ class TabletopEnv(GoalEnv):
         super().reset(seed=seed)
         self._positions = self.sample_initial_goal(self.np_random).astype(np.float64)
         self._held = False
-        self.goal = self.sample_evaluation_goal(self.np_random)
+        goal = commanded_goal(options, self.observation_space["desired_goal"], "Tabletop")
+        self.goal = self.sample_evaluation_goal(self.np_random) if goal is None else goal
         obs = self._get_obs()
         return obs, {"is_success": bool(self.compute_reward(obs["achieved_goal"], self.goal, None) > 0)}
 
