@@ -42,7 +42,12 @@ class ComparisonResult:
 
 
 class ProgressDisplay:
-    """A tqdm bar over the env steps of all runs to do, with counts of running/finished/failed runs."""
+    """A tqdm bar over the env steps of all runs to do, with counts of running/finished/failed runs.
+
+    :param total_steps: env steps summed over all runs.
+    :param n_runs: number of runs.
+    :param enabled: show the bar (False: count silently).
+    """
 
     def __init__(self, total_steps: int, n_runs: int, enabled: bool = True) -> None:
         from tqdm.auto import tqdm

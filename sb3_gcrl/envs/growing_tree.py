@@ -135,7 +135,11 @@ class GrowingTreeGoalEnv(GrowingTreeEnv):
 
     ``Dict(observation, achieved_goal, desired_goal)``, each ``Box(-2, 2, (1,))``; vectorised
     :meth:`compute_reward`; ``reset(options={"goal": g})`` commands another target. Does not terminate at
-    the goal unless ``terminate_at_goal=True``. Other parameters as :class:`GrowingTreeEnv`.
+    the goal unless ``terminate_at_goal=True``.
+
+    :param args: positional parameters of :class:`GrowingTreeEnv`.
+    :param terminate_at_goal: end the episode on success (default False here, unlike :class:`GrowingTreeEnv`).
+    :param kwargs: other parameters of :class:`GrowingTreeEnv`.
     """
 
     def __init__(self, *args: Any, terminate_at_goal: bool = False, **kwargs: Any) -> None:

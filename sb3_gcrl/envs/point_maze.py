@@ -234,7 +234,10 @@ class PointMazeGoalTaskEnv(PointMazeTaskEnv):
 
     ``observation`` = ``(x, y, vx, vy)``, ``achieved_goal`` = ``(x, y)``, ``desired_goal`` = the goal;
     vectorised :meth:`compute_reward`. Does not terminate at the goal unless ``terminate_at_goal=True``.
-    Same parameters as :class:`PointMazeTaskEnv`.
+
+    :param args: positional parameters of :class:`PointMazeTaskEnv`.
+    :param terminate_at_goal: end the episode on success (default False here, unlike :class:`PointMazeTaskEnv`).
+    :param kwargs: other parameters of :class:`PointMazeTaskEnv`.
     """
 
     def __init__(self, *args: Any, terminate_at_goal: bool = False, **kwargs: Any) -> None:

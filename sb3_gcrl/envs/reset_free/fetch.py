@@ -313,7 +313,11 @@ class _HardFetchEnv(ResetFreeFetchEnv):
 
 
 class ResetFreeFetchPushEnv(_IBCFetchEnv, EzPickle):
-    """``GCRL/ResetFreeFetchPush-v0``: IBC's ergodic Fetch Push (blocked gripper, block kept in a 0.4 m box)."""
+    """``GCRL/ResetFreeFetchPush-v0``: IBC's ergodic Fetch Push (blocked gripper, block kept in a 0.4 m box).
+
+    :param reward_type: ``"sparse"`` (thesis) or ``"dense"``, as in gymnasium-robotics' Fetch tasks.
+    :param kwargs: forwarded to gymnasium-robotics' ``MujocoFetchEnv`` (e.g. ``render_mode``).
+    """
 
     def __init__(self, reward_type: str = "sparse", **kwargs: Any) -> None:
         super().__init__(PUSH_XML, True, 0.0, False, reward_type=reward_type, **kwargs)
@@ -321,7 +325,11 @@ class ResetFreeFetchPushEnv(_IBCFetchEnv, EzPickle):
 
 
 class ResetFreeFetchPickAndPlaceEnv(_IBCFetchEnv, EzPickle):
-    """``GCRL/ResetFreeFetchPickAndPlace-v0``: IBC's ergodic Fetch Pick&Place (block kept in a 0.4 m box)."""
+    """``GCRL/ResetFreeFetchPickAndPlace-v0``: IBC's ergodic Fetch Pick&Place (block kept in a 0.4 m box).
+
+    :param reward_type: ``"sparse"`` (thesis) or ``"dense"``, as in gymnasium-robotics' Fetch tasks.
+    :param kwargs: forwarded to gymnasium-robotics' ``MujocoFetchEnv`` (e.g. ``render_mode``).
+    """
 
     def __init__(self, reward_type: str = "sparse", **kwargs: Any) -> None:
         super().__init__(PICK_AND_PLACE_XML, False, 0.2, True, reward_type=reward_type, **kwargs)
@@ -329,7 +337,11 @@ class ResetFreeFetchPickAndPlaceEnv(_IBCFetchEnv, EzPickle):
 
 
 class ResetFreeFetchPushHardEnv(_HardFetchEnv, EzPickle):
-    """``GCRL/ResetFreeFetchPushHard-v0``: Push (hard), goals U(-0.15, 0.15)^2 around the block start."""
+    """``GCRL/ResetFreeFetchPushHard-v0``: Push (hard), goals U(-0.15, 0.15)^2 around the block start.
+
+    :param reward_type: ``"sparse"`` (thesis) or ``"dense"``, as in gymnasium-robotics' Fetch tasks.
+    :param kwargs: forwarded to gymnasium-robotics' ``MujocoFetchEnv`` (e.g. ``render_mode``).
+    """
 
     def __init__(self, reward_type: str = "sparse", **kwargs: Any) -> None:
         # The finger actuators live in the pick-and-place scene; push.xml has none, so a "released" gripper
@@ -344,7 +356,11 @@ class ResetFreeFetchPushHardEnv(_HardFetchEnv, EzPickle):
 
 
 class ResetFreeFetchPickAndPlaceHardEnv(_HardFetchEnv, EzPickle):
-    """``GCRL/ResetFreeFetchPickAndPlaceHard-v0``: Pick&Place (hard), goals only in the air above the start."""
+    """``GCRL/ResetFreeFetchPickAndPlaceHard-v0``: Pick&Place (hard), goals only in the air above the start.
+
+    :param reward_type: ``"sparse"`` (thesis) or ``"dense"``, as in gymnasium-robotics' Fetch tasks.
+    :param kwargs: forwarded to gymnasium-robotics' ``MujocoFetchEnv`` (e.g. ``render_mode``).
+    """
 
     def __init__(self, reward_type: str = "sparse", **kwargs: Any) -> None:
         super().__init__(PICK_AND_PLACE_XML, False, 0.2, True, reward_type=reward_type, **kwargs)
