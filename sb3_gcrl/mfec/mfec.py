@@ -115,7 +115,7 @@ class MFEC(EpisodicControlAlgorithm):
         )
 
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
-        added = self.policy.memory.update_episode(keys, actions - self.policy._action_start, returns)
+        added = self.policy.memory.update_episode(keys, actions - self.policy.action_start, returns)
         return {"added": added, "updated": len(keys) - added}
 
     def learn(

@@ -57,7 +57,8 @@ class MFECPolicy(EpisodicControlPolicy):
             knn_backend=knn_backend,
             rebuild_threshold=rebuild_threshold,
         )
-        self._action_start = int(action_space.start)
+        #: ``action_space.start``: env actions are ``start + a`` for the table index ``a``
+        self.action_start = int(action_space.start)
 
     def q_values(self, keys: np.ndarray) -> np.ndarray:
         """``Q_ec(s, .)`` for a batch of keys: ``(n, n_actions)``."""
@@ -73,7 +74,7 @@ class MFECPolicy(EpisodicControlPolicy):
             if explore.any():
                 actions[explore] = self.rng.integers(n_actions, size=int(explore.sum()))
         known = np.isfinite(q[np.arange(n), actions])
-        return actions + self._action_start, known
+        return actions + self.action_start, known
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
