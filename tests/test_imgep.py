@@ -233,3 +233,21 @@ def test_evaluate_policy_on_random_reachable_goals() -> None:
     env = Monitor(TabularGoalEnv(gym.make("GCRL/LavaGapTabular-v0")))  # goals drawn from the reachable cells
     mean_reward, _ = evaluate_policy(model, env, n_eval_episodes=20)
     assert mean_reward > 0.8  # reward 1 exactly when the commanded cell is reached (Eq. 6.6)
+
+
+def test_all_goals_eval_callback_keeps_its_schedule_when_steps_skip_multiples() -> None:
+    """With n_envs=3 the step count goes 3, 6, 9, 12...: an eval_freq of 10 must still evaluate about every 10
+    steps (at the first count at or past each multiple), not only at multiples of 30."""
+    callback = AllGoalsEvalCallback(eval_env=None, eval_freq=10)  # type: ignore[arg-type]
+    evaluated_at: list[int] = []
+    callback._evaluate = lambda: evaluated_at.append(callback.num_timesteps)  # type: ignore[method-assign]
+
+    class Model:
+        num_timesteps = 0
+
+    callback.model = Model()  # type: ignore[assignment]
+    callback.on_training_start({}, {})
+    for steps in range(3, 61, 3):
+        Model.num_timesteps = steps
+        callback.on_step()
+    assert evaluated_at == [0, 12, 21, 30, 42, 51, 60]

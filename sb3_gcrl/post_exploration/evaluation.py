@@ -78,7 +78,8 @@ class AllGoalsEvalCallback(BaseCallback):
     curves (Fig. 6.3 / 6.5).
 
     :param eval_env: separate goal env for evaluation (see :func:`evaluate_all_goals`).
-    :param eval_freq: evaluate every this many training steps (and at the end of training).
+    :param eval_freq: evaluate every this many training env steps (at the first step at or past each multiple,
+        so any ``n_envs`` works), at the start and at the end of training.
     :param goals: goals to test (default: the env's ``reachable_goals``).
     :param max_steps: step cap per goal.
     :param verbose: 1 prints each result.
@@ -103,6 +104,7 @@ class AllGoalsEvalCallback(BaseCallback):
         self.success_rates: list[float] = []
         self.per_goal: list[np.ndarray] = []
         self._last_eval = -1
+        self._next_eval = self.eval_freq
 
     def _evaluate(self) -> None:
         if self._last_eval == self.num_timesteps:
@@ -118,10 +120,13 @@ class AllGoalsEvalCallback(BaseCallback):
 
     def _on_training_start(self) -> None:
         self._evaluate()
+        self._next_eval = (self.num_timesteps // self.eval_freq + 1) * self.eval_freq
 
     def _on_step(self) -> bool:
-        if self.num_timesteps % self.eval_freq == 0:
+        # ">=" and not "% eval_freq == 0": with n_envs > 1, num_timesteps grows by n_envs and can skip multiples
+        if self.num_timesteps >= self._next_eval:
             self._evaluate()
+            self._next_eval = (self.num_timesteps // self.eval_freq + 1) * self.eval_freq
         return True
 
     def _on_training_end(self) -> None:
