@@ -47,6 +47,7 @@ class EpisodeBuffers:
         self.actions = np.zeros((n_envs, initial_length, *action_shape), dtype=action_dtype)
         self.rewards = np.zeros((n_envs, initial_length), dtype=np.float64)
         self.lengths = np.zeros(n_envs, dtype=np.int64)
+        self._env_indices = np.arange(n_envs)
 
     def _grow(self) -> None:
         self.keys = np.concatenate([self.keys, np.zeros_like(self.keys)], axis=1)
@@ -57,7 +58,7 @@ class EpisodeBuffers:
         """Append one step for every env (``keys`` ``(n_envs, key_dim)``, ``actions``, ``rewards`` ``(n_envs,)``)."""
         if self.lengths.max() >= self.keys.shape[1]:
             self._grow()
-        envs = np.arange(self.n_envs)
+        envs = self._env_indices
         self.keys[envs, self.lengths] = keys
         self.actions[envs, self.lengths] = actions
         self.rewards[envs, self.lengths] = rewards
