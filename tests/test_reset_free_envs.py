@@ -555,14 +555,7 @@ def test_pick_and_place_hard_is_solvable_by_a_scripted_grasp():
     env.close()
 
 
-COMMANDABLE_IDS = [
-    "GCRL/ResetFreeAntArena-v0",
-    "GCRL/Tabletop-v0",
-    pytest.param("GCRL/SawyerDoor-v0", marks=needs_metaworld),
-]
-
-
-@pytest.mark.parametrize("env_id", COMMANDABLE_IDS)
+@pytest.mark.parametrize("env_id", ENV_IDS)
 def test_reset_goal_option_commands_the_goal_and_unknown_options_raise(envs, env_id):
     """``reset(options={"goal": g})`` (as evaluate_all_goals sends it) sets the desired goal instead of being
     silently ignored; other options and malformed goals raise."""

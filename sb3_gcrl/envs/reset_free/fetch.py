@@ -57,6 +57,8 @@ from gymnasium_robotics.envs.fetch.fetch_env import MujocoFetchEnv
 from gymnasium_robotics.envs.fetch.pick_and_place import MODEL_XML_PATH as PICK_AND_PLACE_XML
 from gymnasium_robotics.envs.fetch.push import MODEL_XML_PATH as PUSH_XML
 
+from sb3_gcrl.envs.reset_free.reset_options import commanded_goal
+
 #: Evaluation episode length (steps), thesis Section 3.7.1 / IBC.
 EVAL_HORIZON = 50
 #: Physical (hard) reset interval of reset-free training, thesis Section 3.7.1 / IBC ``train_horizon``.
@@ -241,6 +243,17 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
             self.data.qvel[self._block_qvel][below | above] = 0.0
             self.data.qpos[self._block_qpos] = np.clip(xy, self._block_low, self._block_high)
             mujoco.mj_forward(self.model, self.data)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """gymnasium-robotics' reset; ``options={"goal": g}`` commands the goal (other options raise)."""
+        goal = commanded_goal(options, self.observation_space["desired_goal"], type(self).__name__)
+        obs, info = super().reset(seed=seed)
+        if goal is None:
+            return obs, info
+        self.goal = goal
+        return self._get_obs(), info
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = super().step(action)
