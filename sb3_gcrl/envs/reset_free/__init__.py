@@ -2,7 +2,8 @@
 
 Each env is a gymnasium-robotics-style goal env (Dict obs ``observation``/``achieved_goal``/``desired_goal``,
 vectorised ``compute_reward``, ``info["is_success"]``) that declares its task-relevant goals on the unwrapped
-env: ``sample_initial_goal(rng)`` (rho_0) and ``sample_evaluation_goal(rng)`` (rho_g*). The envs themselves are
+env: ``sample_initial_goal(rng)`` (rho_0) and ``sample_evaluation_goal(rng)`` (rho_g*);
+``reset(options={"goal": g})`` commands goal ``g`` instead of a draw from rho_g*. The envs themselves are
 episodic (registered with ``max_episode_steps`` = the evaluation horizon); reset-free training wraps them
 with the reset-free wrapper, using :data:`RESET_FREE_TASKS` for the hard-reset interval. PointUMaze, the
 eighth task, is ``GCRL/PointUMazeGoal-v0``, registered by :mod:`sb3_gcrl.envs` with 300-step episodes; its entry
