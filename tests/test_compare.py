@@ -291,6 +291,13 @@ def test_run_result_round_trip_and_changed_spec_detection(tmp_path):
     assert not is_finished(tmp_path, spec)  # failed runs are redone
 
 
+def test_finished_run_with_tuples_in_its_spec_is_recognised_on_resume(tmp_path):
+    """run.json stores tuples as lists; resuming must still see the run as finished, not as changed settings."""
+    spec = make_spec(env_kwargs={"goal": (1.0, 0.5)}, hyperparams={"policy_kwargs": {"net_arch": (8, 8)}})
+    write_run_result(tmp_path, RunResult(spec, "finished", [{"timesteps": 0}]))
+    assert is_finished(tmp_path, spec)
+
+
 # --- evaluation schedule ----------------------------------------------------------------------------------
 
 

@@ -112,7 +112,8 @@ def is_finished(run_dir: Path, spec: RunSpec) -> bool:
     # fields that a run.json of an older version lacks count as their defaults
     defaults = RunSpec.defaults()
     stored = {key: value for key, value in {**defaults, **record.get("spec", {})}.items() if key != "config"}
-    wanted = {key: value for key, value in spec.to_dict().items() if key != "config"}
+    # compared in their JSON form: a tuple in hyperparams/env_kwargs comes back from run.json as a list
+    wanted = {key: value for key, value in json.loads(json.dumps(spec.to_dict())).items() if key != "config"}
     if stored != wanted:
         changed = sorted(key for key in set(stored) | set(wanted) if stored.get(key) != wanted.get(key))
         details = ", ".join(f"{key}: {stored.get(key)!r} -> {wanted.get(key)!r}" for key in changed)
