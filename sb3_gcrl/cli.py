@@ -71,8 +71,7 @@ def _with_default_config(argv: list[str]) -> list[str]:
     config = ZOO_CONFIGS_DIR / f"{algo}.yml"
     if not config.is_file():
         raise SystemExit(
-            f"sb3-gcrl: no hyperparameters for --algo {algo}: pass `-conf <file.yml>` "
-            f"(expected a default at {config})"
+            f"sb3-gcrl: no hyperparameters for --algo {algo}: pass `-conf <file.yml>` (expected a default at {config})"
         )
     return [*argv, "-conf", str(config)]
 
