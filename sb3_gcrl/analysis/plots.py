@@ -105,6 +105,7 @@ def plot_visitation_heatmap(
     ax: Axes | None = None,
     title: str | None = None,
     path: str | Path | None = None,
+    points: np.ndarray | None = None,
 ) -> Figure:
     """State-visitation heatmap on a log colour scale (Fig. 3.5 analogue).
 
@@ -115,6 +116,7 @@ def plot_visitation_heatmap(
     :param ax: axes to draw into (default: a new figure).
     :param title: panel title.
     :param path: where to save.
+    :param points: optional ``(n, 2)`` positions drawn as small white dots (e.g. samples of rho_0 / rho_g*).
     :return: the figure.
     """
     counts = np.asarray(counts, dtype=np.float64)
@@ -136,6 +138,9 @@ def plot_visitation_heatmap(
         )
         share = counts[relevant].sum() / max(counts.sum(), 1.0)
         ax.text(0.02, 0.97, f"task-relevant: {share:.1%}", transform=ax.transAxes, va="top", color="white", fontsize=9)
+    if points is not None:
+        points = np.asarray(points, dtype=np.float64)
+        ax.scatter(points[:, 0], points[:, 1], s=4, c="white", alpha=0.5)
     if title:
         ax.set_title(title)
     return _save(figure, path)
@@ -157,6 +162,7 @@ def plot_coverage_map(
     :param ax: axes to draw into.
     :param title: panel title; the share of free cells visited is appended.
     :param path: where to save.
+    :param points: optional ``(n, 2)`` positions drawn as small white dots (e.g. samples of rho_0 / rho_g*).
     :return: the figure.
     """
     counts = np.asarray(counts, dtype=np.float64)

@@ -3,7 +3,6 @@
 from sb3_gcrl.callbacks.reset_free import ResetFreeCallback
 from sb3_gcrl.callbacks.visitation import (
     VisitationCallback,
-    plot_visitation_heatmap,
     task_relevant_fraction,
     visitation_histogram,
 )
@@ -11,7 +10,6 @@ from sb3_gcrl.callbacks.visitation import (
 __all__ = [
     "ResetFreeCallback",
     "VisitationCallback",
-    "plot_visitation_heatmap",
     "task_relevant_fraction",
     "visitation_histogram",
 ]

@@ -54,47 +54,6 @@ def visitation_histogram(
     return hist, xedges, yedges
 
 
-def plot_visitation_heatmap(
-    hist: np.ndarray,
-    xedges: np.ndarray,
-    yedges: np.ndarray,
-    path: str,
-    title: str = "",
-    task_goals: np.ndarray | None = None,
-    percentage: float | None = None,
-) -> None:
-    """Save a log-scaled visitation heatmap (PNG/PDF by extension), task-relevant samples overlaid.
-
-    :param hist: counts from :func:`visitation_histogram`.
-    :param xedges: x bin edges.
-    :param yedges: y bin edges.
-    :param path: output file.
-    :param title: plot title.
-    :param task_goals: optional rho_0/rho_g* samples to draw as dots (first two columns).
-    :param percentage: optional task-relevant fraction shown in the title.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import LogNorm
-
-    fig, ax = plt.subplots(figsize=(4.2, 4))
-    masked = np.ma.masked_equal(hist.T, 0)
-    mesh = ax.pcolormesh(xedges, yedges, masked, norm=LogNorm(vmin=1, vmax=max(hist.max(), 1)), cmap="viridis")
-    fig.colorbar(mesh, ax=ax, label="visits")
-    if task_goals is not None:
-        ax.scatter(task_goals[:, 0], task_goals[:, 1], s=4, c="white", alpha=0.5)
-    if percentage is not None:
-        title = f"{title} ({100 * percentage:.1f}% task-relevant)".strip()
-    ax.set_title(title, fontsize=9)
-    ax.set_aspect("equal")
-    fig.tight_layout()
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
 class VisitationCallback(BaseCallback):
     """Log the task-relevant percentage of the replay buffer; save its visitation histogram at the end.
 
@@ -191,11 +150,12 @@ class VisitationCallback(BaseCallback):
             task_relevant_fraction=self.last_fraction,
             task_goals=self.task_goals(),
         )
+        from sb3_gcrl.analysis.plots import plot_visitation_heatmap  # matplotlib/seaborn only when plotting
+
         plot_visitation_heatmap(
             hist,
-            xedges,
-            yedges,
-            os.path.join(self.save_path, "visitation.png"),
-            task_goals=self.task_goals()[:, list(self.dims)],
-            percentage=self.last_fraction,
+            bounds=((xedges[0], xedges[-1]), (yedges[0], yedges[-1])),
+            title=f"replay buffer ({100 * self.last_fraction:.1f}% task-relevant)",
+            path=os.path.join(self.save_path, "visitation.png"),
+            points=self.task_goals()[:, list(self.dims)],
         )
