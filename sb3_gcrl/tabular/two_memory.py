@@ -57,13 +57,7 @@ class TabularTwoMemory(TwoMemoryAlgorithmMixin, TabularAlgorithm):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        self.policy_kwargs.update(
-            p_ec_schedule=self.p_ec_schedule,
-            data_sharing=self.data_sharing,
-            score_window=self.score_window,
-            ec_gamma=self.gamma if self.ec_gamma is None else self.ec_gamma,
-        )
-        self._two_memory_replay_kwargs(self.data_sharing)
+        self._configure_two_memory()
         super()._setup_model()
 
     @property

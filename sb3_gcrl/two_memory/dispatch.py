@@ -341,6 +341,20 @@ class TwoMemoryAlgorithmMixin:
         filtered = isinstance(buffer, SourceTaggedReplayBuffer) and buffer.filters_sources
         return not (filtered and buffer.n_sampleable() == 0)
 
+    def _configure_two_memory(self) -> None:
+        """Before ``_setup_model``: hand the 2M switches to the policy and pick the replay buffer.
+
+        Reads the algorithm's ``p_ec_schedule``, ``data_sharing``, ``score_window`` and ``ec_gamma`` (``None``:
+        the algorithm's ``gamma``).
+        """
+        self.policy_kwargs.update(
+            p_ec_schedule=self.p_ec_schedule,
+            data_sharing=self.data_sharing,
+            score_window=self.score_window,
+            ec_gamma=self.gamma if self.ec_gamma is None else self.ec_gamma,
+        )
+        self._two_memory_replay_kwargs(self.data_sharing)
+
     def _two_memory_replay_kwargs(self, data_sharing: bool) -> None:
         """Use a :class:`SourceTaggedReplayBuffer` (unless the user gave a buffer class) that, without data sharing,
         samples RL-collected transitions only."""

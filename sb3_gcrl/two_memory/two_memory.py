@@ -74,13 +74,7 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
                 f"TwoMemoryDQN needs a TwoMemoryDQNPolicy (aliases {sorted(self.policy_aliases)}), "
                 f"got {self.policy_class.__name__}"
             )
-        self.policy_kwargs.update(
-            p_ec_schedule=self.p_ec_schedule,
-            data_sharing=self.data_sharing,
-            score_window=self.score_window,
-            ec_gamma=self.gamma if self.ec_gamma is None else self.ec_gamma,
-        )
-        self._two_memory_replay_kwargs(self.data_sharing)
+        self._configure_two_memory()
         super()._setup_model()
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
@@ -139,13 +133,7 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
             raise ValueError(
                 "TwoMemorySAC does not support use_sde=True (EC-run steps have no SDE noise); set it False"
             )
-        self.policy_kwargs.update(
-            p_ec_schedule=self.p_ec_schedule,
-            data_sharing=self.data_sharing,
-            score_window=self.score_window,
-            ec_gamma=self.gamma if self.ec_gamma is None else self.ec_gamma,
-        )
-        self._two_memory_replay_kwargs(self.data_sharing)
+        self._configure_two_memory()
         super()._setup_model()
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
