@@ -133,18 +133,16 @@ class GoExploreWrapper(GoalCommandWrapper):
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
         if self.mode == "episodic":
-            return super().step(action)
-        exploring = self.phase == "explore"
-        if exploring:
+            return GoalCommandWrapper.step(self, action)
+        phase = self.phase
+        if phase == "explore":
             action = self._explore_policy(self._obs, self._rng)  # type: ignore[arg-type]
-        obs, reward, terminated, truncated, info = super().step(action)
-        if exploring:
-            info[EXECUTED_ACTION_KEY] = action
-        self.phase_steps_total[self.phase] += 1
+        obs, reward, terminated, truncated, info = GoalCommandWrapper.step(self, action)
+        self.phase_steps_total[phase] += 1
         self._phase_steps += 1
-        if self.phase == "go" and (
-            self._phase_steps >= self.go_steps or (self.end_go_on_success and info["is_success"])
-        ):
+        if phase == "explore":
+            info[EXECUTED_ACTION_KEY] = action
+        elif self._phase_steps >= self.go_steps or (self.end_go_on_success and info["is_success"]):
             self.phase, self._phase_steps = "explore", 0
         if self.phase == "explore" and self._phase_steps >= self.explore_steps:
             truncated = True  # one Go-Explore per segment: SB3 bootstraps through the cut

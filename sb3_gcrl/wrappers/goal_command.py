@@ -157,17 +157,20 @@ class GoalCommandWrapper(
             if "is_success" not in info:
                 info["is_success"] = self.is_success(obs["achieved_goal"], obs["desired_goal"], info)
             return obs, reward, terminated, truncated, info
+        # hot path (every training step): one compute_reward call, no other numpy work
         achieved = obs["achieved_goal"]
         self.scheduler.observe(achieved)
         reward = float(self._compute_reward(achieved, self.goal, info))
         if self.success_distance is None:
             if self._success_reward is None:
                 self._success_reward = float(self._compute_reward(achieved, achieved, info))
-            success = reward >= self._success_reward  # one compute_reward call per step
+            success = reward >= self._success_reward
         else:
             success = self.is_success(achieved, self.goal, info)  # type: ignore[arg-type]
         info["is_success"] = success
         if success and not self._reached:
             self._reached = True
             self.goal_reached[self.goal_kind] = self.goal_reached.get(self.goal_kind, 0) + 1
-        return self._command(obs), reward, terminated, truncated, info
+        commanded = dict(obs)  # a new dict: inner wrappers keep references to the observations they returned
+        commanded["desired_goal"] = self._goal_obs.copy()
+        return commanded, reward, terminated, truncated, info
