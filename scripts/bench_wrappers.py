@@ -20,7 +20,6 @@ import time
 
 import gymnasium as gym
 import numpy as np
-
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
