@@ -97,7 +97,27 @@ def train(argv: list[str]) -> int:
     """
     from rl_zoo3.train import train as zoo_train
 
-    return _run_zoo_script(zoo_train, "sb3-gcrl train", _with_default_config(argv))
+    argv = _with_default_config(argv)
+    _check_reset_free_config(argv)
+    return _run_zoo_script(zoo_train, "sb3-gcrl train", argv)
+
+
+def _check_reset_free_config(argv: list[str]) -> None:
+    """Stop before training when ``-conf`` uses the reset-free wrappers without ``ResetFreeCallback``."""
+    from sb3_gcrl.callbacks.reset_free import check_reset_free_section
+    from sb3_gcrl.zoo_config import zoo_config_section
+
+    config, env_id = _option_value(argv, "-conf", "--conf-file"), _option_value(argv, "--env")
+    if config is None or env_id is None or not Path(config).is_file():
+        return  # RL-Zoo's own hyperparameters, or an error RL-Zoo reports itself
+    if any(arg.startswith(("callback:", "env_wrapper:")) for arg in argv):
+        return  # overridden with -params: RL-Zoo's merged hyperparameters are not known here
+    section = zoo_config_section(Path(config), env_id)
+    if section is not None:
+        try:
+            check_reset_free_section(section, f"{config} ({env_id})")
+        except ValueError as error:
+            raise SystemExit(f"sb3-gcrl train: {error}") from None
 
 
 def enjoy(argv: list[str]) -> int:

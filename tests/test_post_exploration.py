@@ -154,6 +154,20 @@ def test_episodic_mode_keeps_the_env_goal_and_never_post_explores() -> None:
     assert successes.index(True) == 9 and env.post_exploration_steps == 0
 
 
+@pytest.mark.parametrize("mode", ["episodic", "post_exploration"])
+def test_requested_goal_is_the_goal_the_agent_sees_and_is_judged_on(mode: str) -> None:
+    # all-goals evaluation commands each goal through reset(options={"goal": g}); the observation must carry g
+    env = make_tree(n_pe=3)
+    if mode == "post_exploration":
+        env.enable_post_exploration()
+    for goal, reached in (([0.5], False), ([0.0], True), ([-0.3], False)):
+        obs, _ = env.reset(seed=0, options={"goal": goal})
+        np.testing.assert_allclose(obs["desired_goal"], goal)
+        obs, reward, _, _, info = env.step(np.zeros(1, dtype=np.float32))  # height stays 0.0
+        np.testing.assert_allclose(obs["desired_goal"], goal)
+        assert info["is_success"] == reached and reward == float(reached)
+
+
 def test_wrapper_bad_input_names_the_fix() -> None:
     with pytest.raises(TypeError, match="goal env"):
         PostExplorationWrapper(gym.make("Pendulum-v1"), n_pe=3)

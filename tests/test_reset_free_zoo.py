@@ -87,3 +87,38 @@ def test_every_config_builds_its_wrapped_env(config: Path) -> None:
         if terminated or truncated:
             env.reset()
     env.close()
+
+
+@pytest.mark.parametrize("config", sorted((REPO / "zoo_configs").glob("*.yml")), ids=lambda p: p.stem)
+def test_every_config_that_wraps_for_reset_free_has_the_callback(config: Path) -> None:
+    from sb3_gcrl.callbacks.reset_free import check_reset_free_section
+    from sb3_gcrl.zoo_config import read_zoo_config
+
+    for env_id, section in read_zoo_config(config).items():
+        check_reset_free_section(section, f"{config.name} ({env_id})")
+
+
+def test_reset_free_wrappers_without_the_callback_are_refused(tmp_path: Path) -> None:
+    from sb3_gcrl.callbacks.reset_free import check_reset_free_section
+    from sb3_gcrl.cli import main
+
+    wrapper = {"sb3_gcrl.wrappers.ResetFreeWrapper": {"eval_horizon": 300}}
+    for section in (
+        {"env_wrapper": [wrapper]},
+        {"env_wrapper": "sb3_gcrl.wrappers.GoExploreWrapper"},
+        {"env_wrapper": [wrapper], "callback": ["sb3_gcrl.callbacks.VisitationCallback"]},
+    ):
+        with pytest.raises(ValueError, match="(?s)no ResetFreeCallback.*sb3_gcrl.callbacks.ResetFreeCallback"):
+            check_reset_free_section(section)
+    check_reset_free_section({"env_wrapper": [wrapper], "callback": "sb3_gcrl.callbacks.ResetFreeCallback"})
+    check_reset_free_section({"env_wrapper": [wrapper], "callback": [{"sb3_gcrl.callbacks.ResetFreeCallback": {}}]})
+    check_reset_free_section({"env_wrapper": "sb3_contrib.common.wrappers.TimeFeatureWrapper"})
+
+    # the CLI stops before any training, naming the fix
+    config = tmp_path / "forgot_callback.yml"
+    config.write_text(
+        yaml.safe_dump({ENV_ID: {"n_timesteps": 100, "policy": "MultiInputPolicy", "env_wrapper": [wrapper]}})
+    )
+    with pytest.raises(SystemExit, match="ResetFreeCallback"):
+        main(["train", "--algo", "sac", "--env", ENV_ID, "-conf", str(config), "-f", str(tmp_path / "logs")])
+    assert not (tmp_path / "logs").exists()

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import gymnasium as gym
-import yaml
 
 from sb3_gcrl.cli import ZOO_CONFIGS_DIR
+from sb3_gcrl.zoo_config import read_zoo_config
 
 _LABEL_RE = re.compile(r"^[A-Za-z0-9_.\-+]+$")
 
@@ -52,12 +52,7 @@ def config_env_ids(config: Path) -> list[str]:
     :param config: path of the file.
     :return: its top-level keys (``default``/``atari`` included when present).
     """
-    if config.suffix == ".py":
-        namespace: dict = {}
-        exec(config.read_text(), namespace)
-        return list(namespace["hyperparams"])
-    with open(config) as file:
-        return list(yaml.safe_load(file) or {})
+    return list(read_zoo_config(config))
 
 
 def _covers(config: Path, env_id: str) -> bool:

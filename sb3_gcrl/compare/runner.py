@@ -10,14 +10,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from sb3_gcrl.callbacks.reset_free import check_reset_free_section
 from sb3_gcrl.cli import ZOO_CONFIGS_DIR
 from sb3_gcrl.compare.backends import Backend, Job, LocalProcessBackend, RayBackend
 from sb3_gcrl.compare.methods import Method, check_env_id, file_digest, parse_method
 from sb3_gcrl.compare.report import Summary, summarize, write_outputs
 from sb3_gcrl.compare.run import RunSpec, prepare_process
 from sb3_gcrl.compare.storage import atomic_write_text, is_finished
+from sb3_gcrl.zoo_config import zoo_config_section
 
 #: evaluations per run when ``eval_freq`` is not given
 DEFAULT_N_EVALUATIONS = 20
@@ -87,13 +87,7 @@ class ProgressDisplay:
 
 def _config_budget(config: Path, env_id: str) -> int:
     """``n_timesteps`` of the config section RL-Zoo would use for ``env_id``."""
-    if config.suffix == ".py":
-        namespace: dict[str, Any] = {}
-        exec(config.read_text(), namespace)
-        sections = namespace["hyperparams"]
-    else:
-        sections = yaml.safe_load(config.read_text())
-    section = sections.get(env_id, sections.get("default", {}))
+    section = zoo_config_section(config, env_id) or {}
     if "n_timesteps" not in section:
         raise ValueError(f"{config} gives no n_timesteps for {env_id}: pass a budget (--n-timesteps)")
     return int(float(section["n_timesteps"]))
@@ -136,6 +130,8 @@ def plan_runs(
     for env_id in envs:
         for method in methods:
             config = method.config_for(env_id, config_dir)
+            section = {**(zoo_config_section(config, env_id) or {}), **hyperparams}
+            check_reset_free_section(section, f"{config} ({env_id})")
             budget = n_timesteps if n_timesteps is not None else _config_budget(config, env_id)
             frequency = eval_freq if eval_freq is not None else max(1, budget // DEFAULT_N_EVALUATIONS)
             specs.extend(

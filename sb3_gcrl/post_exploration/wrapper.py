@@ -115,7 +115,7 @@ class PostExplorationWrapper(GoalCommandWrapper):
         requested = options.pop("goal", None)
         obs, info = super().reset(seed=seed, options=options or None)
         if requested is not None:  # explicit goal (all-goals evaluation), in either mode
-            self.goal = np.asarray(requested, dtype=np.float64).reshape(obs["desired_goal"].shape)
+            self._set_goal(requested, obs)
             self._requested_goal = self.goal
             obs = self._command(obs)
         else:

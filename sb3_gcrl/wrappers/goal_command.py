@@ -138,12 +138,16 @@ class GoalCommandWrapper(
         if physical:
             self.scheduler.reset_pending()
         self.scheduler.observe(obs["achieved_goal"])
-        self.goal = np.asarray(self.scheduler.next_goal(obs, self._rng), dtype=np.float64)
-        self._goal_obs = self.goal.astype(obs["desired_goal"].dtype)  # in the observation's dtype, once
+        self._set_goal(self.scheduler.next_goal(obs, self._rng), obs)
         self.goal_kind = self.scheduler.kind
         self.goal_counts[self.goal_kind] = self.goal_counts.get(self.goal_kind, 0) + 1
         self._reached = False
         return self._command(obs), info
+
+    def _set_goal(self, goal: np.ndarray, obs: dict[str, np.ndarray]) -> None:
+        """Command ``goal`` until the next reset (kept in float64 and, for the observations, in their dtype)."""
+        self.goal = np.asarray(goal, dtype=np.float64).reshape(obs["desired_goal"].shape)
+        self._goal_obs = self.goal.astype(obs["desired_goal"].dtype)
 
     def _command(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         # a new dict: inner wrappers keep references to the observations they returned
