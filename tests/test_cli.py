@@ -47,6 +47,12 @@ def test_import_registers_third_party_envs() -> None:
         assert env_id in gym.registry
 
 
+def test_import_is_quiet() -> None:
+    # gymnasium-robotics 1.4.x prints an Adroit notice on import; every `import sb3_gcrl` used to show it
+    result = subprocess.run([sys.executable, "-c", "import sb3_gcrl"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and result.stderr == "" and result.stdout == ""
+
+
 def test_our_algorithm_without_config_names_the_fix(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(ALGORITHMS, "fake_algo", "stable_baselines3:SAC")
     with pytest.raises(SystemExit, match="pass `-conf"):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import gymnasium as gym
 
+from sb3_gcrl.envs import robotics  # noqa: F401  (first: imports gymnasium-robotics quietly)
 from sb3_gcrl.envs.growing_tree import GrowingTreeEnv, GrowingTreeGoalEnv
 from sb3_gcrl.envs.minigrid_tabular import (
     FixedLayout,
