@@ -98,14 +98,13 @@ def train(argv: list[str]) -> int:
     from rl_zoo3.train import train as zoo_train
 
     argv = _with_default_config(argv)
-    _check_reset_free_config(argv)
+    _check_config_callbacks(argv)
     return _run_zoo_script(zoo_train, "sb3-gcrl train", argv)
 
 
-def _check_reset_free_config(argv: list[str]) -> None:
-    """Stop before training when ``-conf`` uses the reset-free wrappers without ``ResetFreeCallback``."""
-    from sb3_gcrl.callbacks.reset_free import check_reset_free_section
-    from sb3_gcrl.zoo_config import zoo_config_section
+def _check_config_callbacks(argv: list[str]) -> None:
+    """Stop before training when ``-conf`` uses a mode-switched wrapper without its callback (see zoo_config)."""
+    from sb3_gcrl.zoo_config import check_mode_switching_callbacks, zoo_config_section
 
     config, env_id = _option_value(argv, "-conf", "--conf-file"), _option_value(argv, "--env")
     if config is None or env_id is None or not Path(config).is_file():
@@ -115,7 +114,7 @@ def _check_reset_free_config(argv: list[str]) -> None:
     section = zoo_config_section(Path(config), env_id)
     if section is not None:
         try:
-            check_reset_free_section(section, f"{config} ({env_id})")
+            check_mode_switching_callbacks(section, f"{config} ({env_id})")
         except ValueError as error:
             raise SystemExit(f"sb3-gcrl train: {error}") from None
 

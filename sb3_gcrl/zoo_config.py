@@ -1,7 +1,8 @@
-"""Reading RL-Zoo hyperparameter files (``zoo_configs/*.yml`` or ``.py`` files exposing ``hyperparams``)."""
+"""Reading and checking RL-Zoo hyperparameter files (``zoo_configs/*.yml``, or ``.py`` files with ``hyperparams``)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -32,3 +33,46 @@ def zoo_config_section(config: Path, env_id: str) -> dict[str, Any] | None:
     sections = read_zoo_config(config)
     section = sections.get(env_id, sections.get("default"))
     return None if section is None else dict(section)
+
+
+#: wrapper class name -> the callback that switches it out of its episodic mode for the training env only (the eval
+#: env, which RL-Zoo wraps with the same ``env_wrapper``, must stay episodic)
+MODE_SWITCHING_CALLBACKS = {
+    "ResetFreeWrapper": "sb3_gcrl.callbacks.ResetFreeCallback",
+    "GoalCommandWrapper": "sb3_gcrl.callbacks.ResetFreeCallback",
+    "GoExploreWrapper": "sb3_gcrl.callbacks.ResetFreeCallback",
+    "PostExplorationWrapper": "sb3_gcrl.post_exploration.PostExplorationCallback",
+}
+
+
+def _class_paths(value: Any) -> list[str]:
+    """Class paths named in an ``env_wrapper``/``callback`` entry (a string, a dict, or a list of them)."""
+    if value is None:
+        return []
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, Mapping):
+        return [str(key) for key in value]
+    return [name for item in value for name in _class_paths(item)]
+
+
+def check_mode_switching_callbacks(section: Mapping[str, Any], where: str = "the config") -> None:
+    """Raise if a section uses our episodic-until-switched wrappers without the callback that switches them.
+
+    Without :class:`~sb3_gcrl.callbacks.ResetFreeCallback` the reset-free wrappers stay episodic, and without
+    :class:`~sb3_gcrl.post_exploration.PostExplorationCallback` no goal is ever commanded: the run would quietly be
+    plain episodic training.
+
+    :param section: the hyperparameters of one env (``env_wrapper``, ``callback``, ...).
+    :param where: the config's name for the error message.
+    :raises ValueError: naming the callback to add.
+    """
+    callbacks = {path.rsplit(".", 1)[-1] for path in _class_paths(section.get("callback"))}
+    for wrapper in _class_paths(section.get("env_wrapper")):
+        callback = MODE_SWITCHING_CALLBACKS.get(wrapper.rsplit(".", 1)[-1])
+        if callback is not None and callback.rsplit(".", 1)[-1] not in callbacks:
+            raise ValueError(
+                f"{where} wraps the env in {wrapper} but has no {callback.rsplit('.', 1)[-1]}, so training would "
+                "stay episodic (the wrapper leaves its episodic mode only when the callback switches the training "
+                f"env): add\n  callback:\n    - {callback}\n(in Python: model.learn(..., callback=...))"
+            )

@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 from gymnasium import spaces
 from stable_baselines3 import A2C
 from stable_baselines3.common.env_util import make_vec_env
@@ -234,6 +235,19 @@ def test_method_without_hyperparameters_for_env_lists_covered_envs(tmp_path):
     expected = r"no hyperparameters for env 'CartPole-v1'.*Envs it covers: \['Pendulum-v1'\]"
     with pytest.raises(ValueError, match=expected):
         method.config_for("CartPole-v1")
+
+
+def test_reset_free_config_without_its_callback_is_refused_before_running(tmp_path):
+    config = tmp_path / "forgot.yml"
+    section = {"n_timesteps": 100, "policy": "MultiInputPolicy", "env_wrapper": ["sb3_gcrl.wrappers.ResetFreeWrapper"]}
+    config.write_text(yaml.safe_dump({"GCRL/PointUMazeGoal-v0": section}))
+    plan = dict(seeds=[0], n_timesteps=None, eval_freq=None, n_eval_episodes=1, gym_packages=[], config_dir=tmp_path)
+    methods = [parse_method(f"sac:{config}")]
+    with pytest.raises(ValueError, match="has no ResetFreeCallback"):
+        plan_runs(methods, ["GCRL/PointUMazeGoal-v0"], hyperparams={}, **plan)
+    # the same override RL-Zoo would apply (--hyperparams callback:...) makes it valid
+    callback = {"callback": ["sb3_gcrl.callbacks.ResetFreeCallback"]}
+    assert len(plan_runs(methods, ["GCRL/PointUMazeGoal-v0"], hyperparams=callback, **plan)) == 1
 
 
 def test_cli_reports_bad_names_before_running_anything(tmp_path, capsys):

@@ -90,29 +90,35 @@ def test_every_config_builds_its_wrapped_env(config: Path) -> None:
 
 
 @pytest.mark.parametrize("config", sorted((REPO / "zoo_configs").glob("*.yml")), ids=lambda p: p.stem)
-def test_every_config_that_wraps_for_reset_free_has_the_callback(config: Path) -> None:
-    from sb3_gcrl.callbacks.reset_free import check_reset_free_section
-    from sb3_gcrl.zoo_config import read_zoo_config
+def test_every_config_with_a_mode_switched_wrapper_has_its_callback(config: Path) -> None:
+    from sb3_gcrl.zoo_config import check_mode_switching_callbacks, read_zoo_config
 
     for env_id, section in read_zoo_config(config).items():
-        check_reset_free_section(section, f"{config.name} ({env_id})")
+        check_mode_switching_callbacks(section, f"{config.name} ({env_id})")
 
 
-def test_reset_free_wrappers_without_the_callback_are_refused(tmp_path: Path) -> None:
-    from sb3_gcrl.callbacks.reset_free import check_reset_free_section
+def test_wrappers_without_their_switching_callback_are_refused(tmp_path: Path) -> None:
     from sb3_gcrl.cli import main
+    from sb3_gcrl.zoo_config import check_mode_switching_callbacks
 
     wrapper = {"sb3_gcrl.wrappers.ResetFreeWrapper": {"eval_horizon": 300}}
-    for section in (
-        {"env_wrapper": [wrapper]},
-        {"env_wrapper": "sb3_gcrl.wrappers.GoExploreWrapper"},
-        {"env_wrapper": [wrapper], "callback": ["sb3_gcrl.callbacks.VisitationCallback"]},
+    reset_free = "sb3_gcrl.callbacks.ResetFreeCallback"
+    post = "sb3_gcrl.post_exploration.PostExplorationCallback"
+    for section, missing in (
+        ({"env_wrapper": [wrapper]}, reset_free),
+        ({"env_wrapper": "sb3_gcrl.wrappers.GoExploreWrapper"}, reset_free),
+        ({"env_wrapper": [wrapper], "callback": ["sb3_gcrl.callbacks.VisitationCallback"]}, reset_free),
+        ({"env_wrapper": [{"sb3_gcrl.post_exploration.PostExplorationWrapper": {"n_pe": 3}}]}, post),
+        ({"env_wrapper": "sb3_gcrl.post_exploration.PostExplorationWrapper", "callback": reset_free}, post),
     ):
-        with pytest.raises(ValueError, match="(?s)no ResetFreeCallback.*sb3_gcrl.callbacks.ResetFreeCallback"):
-            check_reset_free_section(section)
-    check_reset_free_section({"env_wrapper": [wrapper], "callback": "sb3_gcrl.callbacks.ResetFreeCallback"})
-    check_reset_free_section({"env_wrapper": [wrapper], "callback": [{"sb3_gcrl.callbacks.ResetFreeCallback": {}}]})
-    check_reset_free_section({"env_wrapper": "sb3_contrib.common.wrappers.TimeFeatureWrapper"})
+        with pytest.raises(ValueError, match=f"(?s)has no {missing.rsplit('.', 1)[1]}.*- {missing}"):
+            check_mode_switching_callbacks(section)
+    check_mode_switching_callbacks({"env_wrapper": [wrapper], "callback": reset_free})
+    check_mode_switching_callbacks({"env_wrapper": [wrapper], "callback": [{reset_free: {"log_freq": 10}}]})
+    check_mode_switching_callbacks(
+        {"env_wrapper": "sb3_gcrl.post_exploration.PostExplorationWrapper", "callback": post}
+    )
+    check_mode_switching_callbacks({"env_wrapper": "sb3_contrib.common.wrappers.TimeFeatureWrapper"})
 
     # the CLI stops before any training, naming the fix
     config = tmp_path / "forgot_callback.yml"

@@ -12,45 +12,7 @@ and the fraction reached, and the share of Go/Explore steps.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 from stable_baselines3.common.callbacks import BaseCallback
-
-#: wrappers that stay episodic until ResetFreeCallback switches the training env to reset-free mode
-RESET_FREE_WRAPPERS = ("ResetFreeWrapper", "GoalCommandWrapper", "GoExploreWrapper")
-
-
-def _dotted_names(value: Any) -> list[str]:
-    """Class paths named in an RL-Zoo ``env_wrapper``/``callback`` entry (a string, a dict, or a list of them)."""
-    if value is None:
-        return []
-    if isinstance(value, str):
-        return [value]
-    if isinstance(value, Mapping):
-        return [str(key) for key in value]
-    return [name for item in value for name in _dotted_names(item)]
-
-
-def check_reset_free_section(section: Mapping[str, Any], where: str = "the config") -> None:
-    """Raise if an RL-Zoo hyperparameter section uses the reset-free wrappers without :class:`ResetFreeCallback`.
-
-    Without the callback the wrappers stay in their episodic mode and the run is plain episodic training, which
-    would otherwise go unnoticed until the results are read.
-
-    :param section: the hyperparameters of one env (``env_wrapper``, ``callback``, ...).
-    :param where: the config's name for the error message.
-    :raises ValueError: naming the callback to add.
-    """
-    wrappers = [name for name in _dotted_names(section.get("env_wrapper")) if name.endswith(RESET_FREE_WRAPPERS)]
-    callbacks = _dotted_names(section.get("callback"))
-    if wrappers and not any(name.endswith("ResetFreeCallback") for name in callbacks):
-        raise ValueError(
-            f"{where} wraps the env in {', '.join(wrappers)} but has no ResetFreeCallback, so training would stay "
-            "episodic (the wrappers switch to reset-free mode only when the callback tells them): add\n"
-            "  callback:\n    - sb3_gcrl.callbacks.ResetFreeCallback\n"
-            "(in Python: model.learn(..., callback=ResetFreeCallback()))"
-        )
 
 
 class ResetFreeCallback(BaseCallback):

@@ -10,14 +10,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sb3_gcrl.callbacks.reset_free import check_reset_free_section
 from sb3_gcrl.cli import ZOO_CONFIGS_DIR
 from sb3_gcrl.compare.backends import Backend, Job, LocalProcessBackend, RayBackend
 from sb3_gcrl.compare.methods import Method, check_env_id, file_digest, parse_method
 from sb3_gcrl.compare.report import Summary, summarize, write_outputs
 from sb3_gcrl.compare.run import RunSpec, prepare_process
 from sb3_gcrl.compare.storage import atomic_write_text, is_finished
-from sb3_gcrl.zoo_config import zoo_config_section
+from sb3_gcrl.zoo_config import check_mode_switching_callbacks, zoo_config_section
 
 #: evaluations per run when ``eval_freq`` is not given
 DEFAULT_N_EVALUATIONS = 20
@@ -131,7 +130,7 @@ def plan_runs(
         for method in methods:
             config = method.config_for(env_id, config_dir)
             section = {**(zoo_config_section(config, env_id) or {}), **hyperparams}
-            check_reset_free_section(section, f"{config} ({env_id})")
+            check_mode_switching_callbacks(section, f"{config} ({env_id})")
             budget = n_timesteps if n_timesteps is not None else _config_budget(config, env_id)
             frequency = eval_freq if eval_freq is not None else max(1, budget // DEFAULT_N_EVALUATIONS)
             specs.extend(
