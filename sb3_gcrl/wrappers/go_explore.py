@@ -133,11 +133,11 @@ class GoExploreWrapper(GoalCommandWrapper):
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
         if self.mode == "episodic":
-            return GoalCommandWrapper.step(self, action)
+            return super().step(action)
         phase = self.phase
         if phase == "explore":
             action = self._explore_policy(self._obs, self._rng)  # type: ignore[arg-type]
-        obs, reward, terminated, truncated, info = GoalCommandWrapper.step(self, action)
+        obs, reward, terminated, truncated, info = super().step(action)
         self.phase_steps_total[phase] += 1
         self._phase_steps += 1
         if phase == "explore":
