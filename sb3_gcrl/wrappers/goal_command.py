@@ -175,6 +175,4 @@ class GoalCommandWrapper(
         if success and not self._reached:
             self._reached = True
             self.goal_reached[self.goal_kind] = self.goal_reached.get(self.goal_kind, 0) + 1
-        commanded = dict(obs)  # a new dict: inner wrappers keep references to the observations they returned
-        commanded["desired_goal"] = self._goal_obs.copy()
-        return commanded, reward, terminated, truncated, info
+        return self._command(obs), reward, terminated, truncated, info
