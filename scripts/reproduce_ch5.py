@@ -198,7 +198,7 @@ def report(args: argparse.Namespace) -> None:
             n = min(len(r["returns"]) for r in runs)
             x = runs[0]["steps"][:n]
             curves = np.stack([r["returns"][:n] for r in runs])
-            axes[0, 0].plot(x, np.median(curves, 0), label=agent)
+            axes[0, 0].plot(x, np.median(curves, 0), label=f"{agent} ({len(runs)} seeds)")
             axes[0, 0].fill_between(x, curves.min(0), curves.max(0), alpha=0.2)
             if task == "windygrid" and agent in ("q", "2m"):
                 q_sums = np.stack([r["q_sum"][:n] for r in runs])
@@ -210,7 +210,11 @@ def report(args: argparse.Namespace) -> None:
             axes[0, 0].axhline(windy_grid_optimal_value(), color="k", ls="--", label="optimum")
             axes[0, 1].set(title="summed Q-values", xlabel="env steps")
             axes[0, 1].legend()
-        axes[0, 0].set(title=f"{task}: evaluation return", xlabel="env steps")
+        axes[0, 0].set(
+            title=f"{task}: greedy evaluation return\n(median over seeds, band: min-max)",
+            xlabel="env steps",
+            ylabel="mean return",
+        )
         axes[0, 0].legend()
         fig.tight_layout()
         fig.savefig(os.path.join(args.out, f"{task}.png"), dpi=100)
