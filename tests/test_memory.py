@@ -51,6 +51,11 @@ def test_knn_exact_under_adds_and_overwrites(backend, dim):
             # the returned rows really are at the returned distances
             recomputed = np.linalg.norm(reference[rows[:, :kk]] - queries[:, None, :], axis=-1)
             np.testing.assert_allclose(recomputed, dist[:, :kk], rtol=1e-5, atol=1e-5)
+            # one query at a time (the per-env-step path) gives the batch's answer
+            for i in range(len(queries)):
+                dist_one, rows_one = index.search(queries[i : i + 1], 5)
+                np.testing.assert_allclose(dist_one, dist[i : i + 1], rtol=1e-6)
+                np.testing.assert_array_equal(rows_one, rows[i : i + 1])
     if backend == "kdtree":
         assert index.n_rebuilds > 1  # lazily rebuilt, not per write
 

@@ -183,7 +183,8 @@ class KNNIndex:
             self.rebuild()
         dist, rows = self._search_tree(queries, k)
         if self._n_delta:
-            dist, rows = self._merge_delta(queries, k, dist, rows)
+            merge = self._merge_delta_single if n_queries == 1 else self._merge_delta
+            dist, rows = merge(queries, k, dist, rows)
         rows = rows.astype(np.int64, copy=False)
         if dist.shape[1] < k:
             pad = k - dist.shape[1]
@@ -259,6 +260,25 @@ class KNNIndex:
         else:
             pos = np.broadcast_to(np.arange(m), sq.shape)
         return np.sqrt(sq, dtype=np.float64), self._delta_rows[pos]
+
+    def _merge_delta_single(
+        self, queries: np.ndarray, k: int, dist: np.ndarray, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_merge_delta` for one query (every env step of an episodic agent): the same result with about
+        half the numpy calls, which is what a single query costs."""
+        m = self._n_delta
+        diff = self._delta_keys[:m] - queries[0]
+        d_delta = np.sqrt(np.einsum("md,md->m", diff, diff), dtype=np.float64)
+        if dist.shape[1] == k and not d_delta.min() < dist[0, -1]:
+            return dist, rows  # no written row is among the k nearest
+        r_delta = self._delta_rows[:m]
+        if m > k:
+            pos = np.argpartition(d_delta, k - 1)[:k]
+            d_delta, r_delta = d_delta[pos], r_delta[pos]
+        all_d = np.concatenate([dist[0], d_delta])
+        all_r = np.concatenate([rows[0], r_delta])
+        order = np.argsort(all_d, kind="stable")[:k]
+        return all_d[order][None], all_r[order][None]
 
     def _merge_delta(
         self, queries: np.ndarray, k: int, dist: np.ndarray, rows: np.ndarray

@@ -181,13 +181,17 @@ class TwoMemoryDispatchMixin:
             memories = np.full(n, self.evaluation_memory(), dtype=np.int8)
         else:
             memories = self.assign_memories()
+        # (the tensor's device: ``self.device`` walks all parameters, a measurable cost per env step)
+        device = _device(observation)
+        if n == 1 or (memories == memories[0]).all():
+            # one memory acts for the whole batch (always with one env): no row split and scatter
+            act = self._episodic_actions if memories[0] == EPISODIC else self._parametric_actions
+            return act(observation, deterministic).to(device)
         actions: th.Tensor | None = None
         for memory, act in ((EPISODIC, self._episodic_actions), (PARAMETRIC, self._parametric_actions)):
             rows = np.flatnonzero(memories == memory)
             if rows.size == 0:
                 continue
-            # (the tensor's device: ``self.device`` walks all parameters, a measurable cost per env step)
-            device = _device(observation)
             index = th.as_tensor(rows, device=device)
             memory_actions = act(_select_rows(observation, index), deterministic)
             if actions is None:
