@@ -198,7 +198,8 @@ def report(args: argparse.Namespace) -> None:
             n = min(len(r["returns"]) for r in runs)
             x = runs[0]["steps"][:n]
             curves = np.stack([r["returns"][:n] for r in runs])
-            axes[0, 0].plot(x, np.median(curves, 0), label=f"{agent} ({len(runs)} seeds)")
+            seeds = f"{len(runs)} seed" + ("s" if len(runs) > 1 else "")
+            axes[0, 0].plot(x, np.median(curves, 0), label=f"{agent} ({seeds})")
             axes[0, 0].fill_between(x, curves.min(0), curves.max(0), alpha=0.2)
             if task == "windygrid" and agent in ("q", "2m"):
                 q_sums = np.stack([r["q_sum"][:n] for r in runs])
