@@ -265,7 +265,7 @@ class KNNIndex:
         self, queries: np.ndarray, k: int, dist: np.ndarray, rows: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_merge_delta` for one query (every env step of an episodic agent): the same result with about
-        half the numpy calls, which is what a single query costs."""
+        half the numpy calls, since per-call overhead, not arithmetic, is what a single query costs."""
         m = self._n_delta
         diff = self._delta_keys[:m] - queries[0]
         d_delta = np.sqrt(np.einsum("md,md->m", diff, diff), dtype=np.float64)
