@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 from gymnasium.utils.env_checker import check_env as gym_check_env
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalCallback, StopTrainingOnMaxEpisodes
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
+from stable_baselines3.common.evaluation import evaluate_policy
 
 import sb3_gcrl  # noqa: F401
 from sb3_gcrl.imgep import TabularGoalEnv, TabularGoalPolicy, TabularIMGEP, minigrid_reachable_cells
@@ -34,6 +35,15 @@ class ChainEnv(gym.Env):
         self.state = int(np.clip(self.state + (1 if action == 1 else -1), 0, self.n - 1))
         self.t += 1
         return np.int64(self.state), 0.0, False, self.t >= self.horizon, {}
+
+
+class ChainTaskEnv(ChainEnv):
+    """ChainEnv whose own task is to reach the last state (reward 1, terminated there)."""
+
+    def step(self, action):
+        state, _, _, truncated, info = super().step(action)
+        at_end = self.state == self.n - 1
+        return state, float(at_end), at_end, truncated, info
 
 
 def make_model(**kwargs) -> TabularIMGEP:
@@ -251,3 +261,110 @@ def test_all_goals_eval_callback_keeps_its_schedule_when_steps_skip_multiples() 
         Model.num_timesteps = steps
         callback.on_step()
     assert evaluated_at == [0, 12, 21, 30, 42, 51, 60]
+
+
+def test_predict_evaluate_policy_and_eval_callback_take_the_plain_envs_states() -> None:
+    """A bare state of the plain env commands the env's own task goal (here given; MiniGrid: the goal tile)."""
+    model = TabularIMGEP("TabularGoalPolicy", TabularGoalEnv(ChainTaskEnv(), terminate_at_goal=False, task_goal=5))
+    assert model.task_goal == 5
+    model.policy.q[:, 5, 1] = 1.0  # towards the task goal: always right; any other goal: all-zero rows -> left
+    assert model.predict(np.int64(2))[0] == 1
+    np.testing.assert_array_equal(model.predict(np.arange(6))[0], np.ones(6))
+    mean_reward, _ = evaluate_policy(model, ChainTaskEnv(), n_eval_episodes=2)
+    assert mean_reward == 1.0
+    evaluation = EvalCallback(ChainTaskEnv(), eval_freq=1, n_eval_episodes=2, verbose=0)
+    model.learn(1, callback=evaluation, log_interval=0)  # evaluates after step 1, before the first update
+    assert evaluation.last_mean_reward == 1.0
+    four_rooms = TabularGoalEnv(gym.make("GCRL/FourRoomsTabular-v0"))
+    base = four_rooms.unwrapped
+    assert base.grid.get(four_rooms.task_goal % base.width, four_rooms.task_goal // base.width).type == "goal"
+
+
+def test_predict_on_a_bare_state_without_a_task_goal_refuses_clearly() -> None:
+    model = make_model()  # ChainEnv: no task goal known
+    assert model.task_goal is None
+    with pytest.raises(ValueError, match="task_goal=g"):
+        model.predict(np.int64(0))
+    obs = {"observation": np.arange(6), "desired_goal": np.full(6, 5)}
+    assert model.predict(obs)[0].shape == (6,)  # goal-conditioned observations always work
+    with_goal = TabularIMGEP("TabularGoalPolicy", TabularGoalEnv(ChainEnv(), task_goal=3))
+    with pytest.raises(ValueError, match=r"integers in \[0, 6\)"):
+        with_goal.predict(np.array([7]))
+    with pytest.raises(ValueError, match="task_goal"):
+        TabularGoalEnv(ChainEnv(), task_goal=6)
+
+
+class RecordLocals(BaseCallback):
+    def __init__(self) -> None:
+        super().__init__()
+        self.steps: list[dict] = []
+
+    def _on_step(self) -> bool:
+        self.steps.append({key: self.locals[key] for key in ("new_obs", "rewards", "dones", "infos", "actions")})
+        return True
+
+
+def test_callbacks_get_sb3s_step_locals_and_stop_training_on_max_episodes_works() -> None:
+    model = make_model(epsilon=0.0, post_exploration=False)
+    model.policy.q[:, :, 1] = 1.0  # greedy: always right
+    model._sample_goal = lambda: 3  # type: ignore[method-assign]
+    model.goal_space.add(np.array([[0.0]]))
+    recorder = RecordLocals()
+    model.learn(10_000, callback=CallbackList([recorder, StopTrainingOnMaxEpisodes(max_episodes=2)]), log_interval=0)
+    assert model.num_timesteps == 6  # two episodes of 3 steps (each ends at goal 3 without post-exploration)
+    dones = [bool(step["dones"][0]) for step in recorder.steps]
+    assert dones == [False, False, True, False, False, True]
+    first = recorder.steps[0]
+    assert first["new_obs"]["observation"].tolist() == [1] and first["new_obs"]["desired_goal"].tolist() == [3]
+    assert first["actions"].tolist() == [1] and first["rewards"].shape == (1,)
+    assert [float(step["rewards"][0]) for step in recorder.steps[:3]] == [0.0, 0.0, 1.0]  # Eq. 6.6 at the goal
+    assert isinstance(first["infos"], list) and first["infos"][0]["is_success"] is False
+
+
+def test_dones_mark_the_end_of_post_exploration_and_truncation() -> None:
+    model = make_model(epsilon=0.0, post_exploration_rule=FixedSteps(2))
+    model.policy.q[:, :, 1] = 1.0
+    model._sample_goal = lambda: 3  # type: ignore[method-assign]
+    model.goal_space.add(np.array([[0.0]]))
+    recorder = RecordLocals()
+    model.learn(5, callback=recorder, log_interval=0)
+    assert [bool(step["dones"][0]) for step in recorder.steps] == [False] * 4 + [True]  # 3 to the goal + 2 random
+    never = make_model(epsilon=0.0)
+    never.policy.q[:, :, 0] = 1.0  # always left: never reaches goal 3, the episode is truncated after 20 steps
+    never._sample_goal = lambda: 3  # type: ignore[method-assign]
+    never.goal_space.add(np.array([[0.0]]))
+    recorder = RecordLocals()
+    never.learn(20, callback=recorder, log_interval=0)
+    assert [bool(step["dones"][0]) for step in recorder.steps] == [False] * 19 + [True]
+
+
+def test_set_random_seed_reseeds_the_agents_generator() -> None:
+    reseeded = make_model(seed=0)
+    reseeded.set_random_seed(7)
+    reseeded.learn(300, log_interval=0)
+    fresh = make_model(seed=7)
+    fresh.learn(300, log_interval=0)
+    np.testing.assert_array_equal(reseeded.policy.q, fresh.policy.q)
+    np.testing.assert_array_equal(reseeded.goal_space.counts, fresh.goal_space.counts)
+
+
+def test_a_loaded_model_continues_exactly_as_the_saved_one(tmp_path) -> None:
+    model = make_model(seed=3)
+    model.learn(300, log_interval=0)
+    model.save(tmp_path / "imgep")
+    model.learn(300, log_interval=0)
+    loaded = TabularIMGEP.load(tmp_path / "imgep", env=ChainEnv())
+    loaded.learn(300, log_interval=0)
+    np.testing.assert_array_equal(loaded.policy.q, model.policy.q)
+    np.testing.assert_array_equal(loaded.goal_space.counts, model.goal_space.counts)
+
+
+def test_set_env_takes_the_plain_env_that_load_takes(tmp_path) -> None:
+    model = make_model(seed=0)
+    model.set_env(ChainEnv())
+    assert isinstance(model.goal_env, TabularGoalEnv) and model.goal_env.terminate_at_goal is False
+    model.learn(50, log_interval=0)
+    model.set_env(TabularGoalEnv(ChainEnv(), terminate_at_goal=False, task_goal=2))
+    assert model.task_goal == 2
+    with pytest.raises(TypeError, match="Discrete observation"):
+        model.set_env(gym.make("CartPole-v1"))

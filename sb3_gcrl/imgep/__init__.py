@@ -2,6 +2,6 @@
 
 from sb3_gcrl.imgep.imgep import TabularIMGEP
 from sb3_gcrl.imgep.policies import TabularGoalPolicy
-from sb3_gcrl.imgep.tabular_goal_env import TabularGoalEnv, minigrid_reachable_cells
+from sb3_gcrl.imgep.tabular_goal_env import TabularGoalEnv, minigrid_reachable_cells, minigrid_task_goal
 
-__all__ = ["TabularGoalEnv", "TabularGoalPolicy", "TabularIMGEP", "minigrid_reachable_cells"]
+__all__ = ["TabularGoalEnv", "TabularGoalPolicy", "TabularIMGEP", "minigrid_reachable_cells", "minigrid_task_goal"]

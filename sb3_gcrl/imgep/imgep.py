@@ -7,6 +7,11 @@ take random actions for as many steps as the :mod:`~sb3_gcrl.post_exploration.ru
 The goal space and its counts are updated with every visited state, and the Q-table is updated with Eq. 6.2 on
 the episode for the commanded goal and for hindsight goals (Sec. 6.4.2): half of the trajectory's states,
 always including the whole post-exploration part, are relabeled as goals.
+
+The policy is goal-conditioned: its observation space is the Dict of :class:`TabularGoalEnv` (``observation``,
+``achieved_goal``, ``desired_goal``). :meth:`TabularIMGEP.predict` also takes a bare state of the plain tabular
+env and then commands the goal of the env's own task (:attr:`TabularGoalEnv.task_goal`, the goal tile's cell
+for MiniGrid), so ``evaluate_policy`` and SB3's ``EvalCallback`` work on the plain env too.
 """
 
 from __future__ import annotations
@@ -36,6 +41,8 @@ class TabularIMGEP(BaseAlgorithm):
     :param policy: ``"TabularGoalPolicy"`` (or the class).
     :param env: a tabular env (Discrete observation and actions, e.g. ``"GCRL/FourRoomsTabular-v0"``) or a
         :class:`~sb3_gcrl.imgep.TabularGoalEnv`; plain tabular envs are wrapped in one (MiniGrid: goals are cells).
+        The model's ``observation_space`` is that goal env's Dict; :meth:`predict` also takes the plain env's
+        bare states (goal: the env's own task goal, see :attr:`task_goal`).
     :param learning_rate: alpha of Eq. 6.2 (Table 6.2: 0.1), or a schedule of the remaining progress.
     :param gamma: discount of Eq. 6.2 (Table 6.2: 0.99).
     :param epsilon: probability of a random action while going to the goal (Table 6.2: 0, 0.1 or 0.3).
@@ -51,7 +58,8 @@ class TabularIMGEP(BaseAlgorithm):
     :param stats_window_size: episodes averaged in the ``rollout/`` logs.
     :param tensorboard_log: tensorboard directory.
     :param verbose: 0 silent, 1 training logs.
-    :param seed: seed of the agent's random generator and the env.
+    :param seed: seed of the agent's random generator and the env (:meth:`set_random_seed` reseeds both; the
+        generator's state is saved with the model, so a loaded model continues exactly).
     :param device: kept for SB3's signature; tables live on the CPU.
     :param _init_setup_model: build the table now (False when loading).
     """
@@ -122,6 +130,8 @@ class TabularIMGEP(BaseAlgorithm):
         self.post_exploration_rule = post_exploration_rule or ProportionalSteps(0.5)
         self.relabel_fraction = float(relabel_fraction)
         self.goal_space: BinnedGoalSpace | None = None
+        #: goal commanded when :meth:`predict` gets a bare state of the plain env (the env's own task; None: unknown)
+        self.task_goal: int | None = None
         if _init_setup_model:
             self._setup_model()
 
@@ -149,7 +159,12 @@ class TabularIMGEP(BaseAlgorithm):
 
     def _setup_model(self) -> None:
         self._setup_lr_schedule()
+        saved_rng = self.__dict__.pop("_rng", None)  # restored by ``load``: continue where the saved model stopped
         self.set_random_seed(self.seed)
+        if saved_rng is not None:
+            self._rng = saved_rng
+        elif not hasattr(self, "_rng"):  # no seed: fresh entropy
+            self._rng = np.random.default_rng()
         self.policy = self.policy_class(  # type: ignore[assignment]
             self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
         )
@@ -157,8 +172,9 @@ class TabularIMGEP(BaseAlgorithm):
         self._setup_runtime()
 
     def _setup_runtime(self) -> None:
-        """Objects rebuilt at setup and after ``load``; the goal space (visit counts) and counters are saved."""
-        self._rng = np.random.default_rng(self.seed)
+        """Objects rebuilt at setup and after ``load``; goal space (visit counts), counters and generator are saved."""
+        if self.env is not None:
+            self.task_goal = self.goal_env.task_goal
         self._capacity = 1024
         self._alloc(self._capacity)
         if getattr(self, "goal_space", None) is None:  # loaded models keep their saved counts
@@ -168,6 +184,68 @@ class TabularIMGEP(BaseAlgorithm):
             self._n_episodes = 0
             self._n_reached = 0
             self._n_post_exploration_steps = 0
+
+    def set_random_seed(self, seed: int | None = None) -> None:
+        """Seed SB3's generators (python, numpy, torch, env, action space) and the agent's own generator.
+
+        :param seed: the seed; None leaves every generator as it is (as in SB3).
+        """
+        super().set_random_seed(seed)
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+
+    def set_env(self, env: GymEnv | str, force_reset: bool = True) -> None:  # type: ignore[override]
+        """The env to learn in: a plain tabular env (or id) is wrapped in a :class:`TabularGoalEnv` as in ``__init__``.
+
+        :param env: the new env (its spaces must match the model's).
+        :param force_reset: as in SB3.
+        """
+        super().set_env(self._as_goal_env(env), force_reset=force_reset)
+        self.task_goal = self.goal_env.task_goal
+
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """Greedy action for a goal-conditioned observation, or for a bare state of the plain env.
+
+        :param observation: a Dict observation of the :class:`TabularGoalEnv` (``observation`` and
+            ``desired_goal``), or a state (an int or an array of ints) of the plain tabular env, in which case the
+            goal of the env's own task (:attr:`task_goal`) is commanded.
+        :param state: unused (no recurrent state).
+        :param episode_start: unused.
+        :param deterministic: unused (the greedy policy is deterministic).
+        :return: the action(s) and None.
+        :raises ValueError: a bare state but no task goal is known, or a state outside the env's states.
+        """
+        if not isinstance(observation, dict):
+            observation = self._goal_observation(observation)
+        return super().predict(observation, state, episode_start, deterministic)
+
+    def _goal_observation(self, states: Any) -> dict[str, np.ndarray]:
+        """The Dict observation commanding :attr:`task_goal` from bare states of the plain env."""
+        if self.task_goal is None:
+            raise ValueError(
+                "TabularIMGEP's policy is goal-conditioned and got a bare state of the plain env, whose own task goal "
+                "is unknown (only MiniGrid tasks have one, their goal tile). Pass Dict observations "
+                "{'observation': s, 'desired_goal': g} (e.g. evaluate on sb3_gcrl.imgep.TabularGoalEnv(env)), or "
+                "name the task's goal: TabularIMGEP(..., env=TabularGoalEnv(env, task_goal=g))."
+            )
+        n_states = self.observation_space["observation"].n  # type: ignore[index]
+        states = np.asarray(states)
+        if (
+            not np.issubdtype(states.dtype, np.integer)
+            or states.size == 0
+            or not ((states >= 0) & (states < n_states)).all()
+        ):
+            raise ValueError(
+                f"TabularIMGEP.predict takes a Dict observation or states of the plain env (integers in "
+                f"[0, {n_states})), got {states!r}"
+            )
+        return {"observation": states, "desired_goal": np.full_like(states, self.task_goal)}
 
     @classmethod
     def load(cls, path: Any, env: GymEnv | str | None = None, **kwargs: Any) -> TabularIMGEP:  # type: ignore[override]
@@ -261,31 +339,38 @@ class TabularIMGEP(BaseAlgorithm):
                 action = int(self._rng.integers(self.policy.n_actions))  # random policy: init episode / post-expl.
             else:
                 action = self._explore_action(state, goal)
-            obs, _, terminated, truncated, info = env.step(action)
+            obs, reward, terminated, truncated, info = env.step(action)
             self.num_timesteps += 1
             next_state = int(obs["observation"])
             self._states[t], self._actions[t], self._next_states[t] = state, action, next_state
             self._next_goals[t], self._terminals[t] = obs["achieved_goal"], terminated
             t += 1
             state = next_state
-            callback.update_locals(locals())
-            if not callback.on_step():
-                return False
+            episode_over = bool(terminated or truncated)
             if post_exploring:
                 self._n_post_exploration_steps += 1
                 post_left -= 1
-                if post_left <= 0:
-                    break
+                episode_over = episode_over or post_left <= 0
             elif goal is not None and int(obs["achieved_goal"]) == goal:
                 reached_at = t - 1
                 self._n_reached += 1
                 if not self.post_exploration:
-                    break
-                visited = rule_counts[rule_counts > 0]
-                post_left = self.post_exploration_rule.length(t, float(rule_counts[goal]), float(np.median(visited)))
-                if post_left <= 0:
-                    break
-            if terminated or truncated or self.num_timesteps >= total_timesteps:
+                    episode_over = True
+                else:
+                    visited = rule_counts[rule_counts > 0]
+                    median = float(np.median(visited))
+                    post_left = self.post_exploration_rule.length(t, float(rule_counts[goal]), median)
+                    episode_over = episode_over or post_left <= 0
+            # the per-step locals SB3's off-policy loop gives callbacks, batched over the one env
+            new_obs = {key: np.array([value]) for key, value in obs.items()}
+            rewards = np.array([reward], dtype=np.float32)
+            actions = np.array([action])
+            dones = np.array([episode_over])
+            infos = [info]
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return False
+            if episode_over or self.num_timesteps >= total_timesteps:
                 break
         # Algorithm 3: extend G and p(g) with every state of the episode, then learn with hindsight.
         self.goal_space.add(np.append(self._next_goals[:t], first_goal).astype(np.float64)[:, None])
@@ -347,7 +432,6 @@ class TabularIMGEP(BaseAlgorithm):
     def _excluded_save_params(self) -> list[str]:
         return [
             *super()._excluded_save_params(),
-            "_rng",
             "_states",
             "_actions",
             "_next_states",

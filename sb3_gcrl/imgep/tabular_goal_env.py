@@ -4,8 +4,9 @@
 into a gymnasium-robotics style goal env whose goals are discrete too: ``achieved_goal = goal_of_state[s]``,
 reward ``R_g(s, a, s') = 1[goal(s') = g]`` (Eq. 6.6), ``info["is_success"]``. For the MiniGrid tabular tasks
 the goal space is the agent's cell ``(x, y)`` (``state // 4``, direction dropped) and the reachable goals are
-found by a breadth-first search over the grid (lava and walls excluded); for any other Discrete env goals are
-states and every state counts as reachable unless ``reachable_goals`` is given.
+found by a breadth-first search over the grid (lava and walls excluded) and the env's own task is the goal tile's
+cell (:attr:`TabularGoalEnv.task_goal`); for any other Discrete env goals are states, every state counts as
+reachable unless ``reachable_goals`` is given, and the task goal is unknown unless ``task_goal`` is given.
 """
 
 from __future__ import annotations
@@ -58,6 +59,26 @@ def minigrid_reachable_cells(env: gym.Env) -> np.ndarray:
     return np.array(sorted(y * width + x for x, y in seen), dtype=np.int64)
 
 
+def minigrid_task_goal(env: gym.Env) -> int | None:
+    """Cell ``y * width + x`` of the grid's goal tile (the env's own task), or None when there is not exactly one.
+
+    The env is reset once (the tabular tasks have a fixed layout per ``layout_seed``).
+
+    :param env: a MiniGrid env (possibly wrapped).
+    :return: the goal tile's cell index, or None.
+    """
+    env.reset()
+    base = env.unwrapped
+    width, height = int(base.width), int(base.height)
+    cells = [
+        y * width + x
+        for y in range(height)
+        for x in range(width)
+        if getattr(base.grid.get(x, y), "type", None) == "goal"
+    ]
+    return cells[0] if len(cells) == 1 else None
+
+
 class TabularGoalEnv(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Goal env over a Discrete-observation env, with one-hot goal reward (thesis Eq. 6.6).
 
@@ -73,6 +94,9 @@ class TabularGoalEnv(gym.Wrapper, gym.utils.RecordConstructorArgs):
         otherwise all goals).
     :param terminate_at_goal: end the episode (``terminated``) when the goal is reached. True for evaluation;
         :class:`~sb3_gcrl.imgep.TabularIMGEP` sets it False and decides itself (post-exploration).
+    :param task_goal: the goal that solves the wrapped env's own task, commanded when an agent is given a bare
+        state of the env (``TabularIMGEP.predict``, ``evaluate_policy`` or ``EvalCallback`` on the plain env).
+        ``None``: MiniGrid tabular tasks use the goal tile's cell; for any other env it stays unknown.
     """
 
     def __init__(
@@ -82,6 +106,7 @@ class TabularGoalEnv(gym.Wrapper, gym.utils.RecordConstructorArgs):
         n_goals: int | None = None,
         reachable_goals: np.ndarray | None = None,
         terminate_at_goal: bool = True,
+        task_goal: int | None = None,
     ) -> None:
         if not isinstance(env.observation_space, spaces.Discrete):
             raise TypeError(
@@ -96,6 +121,7 @@ class TabularGoalEnv(gym.Wrapper, gym.utils.RecordConstructorArgs):
             n_goals=n_goals,
             reachable_goals=reachable_goals,
             terminate_at_goal=terminate_at_goal,
+            task_goal=task_goal,
         )
         gym.Wrapper.__init__(self, env)
         n_states = int(env.observation_space.n)
@@ -121,6 +147,12 @@ class TabularGoalEnv(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self.reachable_goals.size == 0 or self.reachable_goals.max() >= n_goals or self.reachable_goals.min() < 0:
             raise ValueError(f"reachable_goals must be a non-empty set of goal indices in [0, {n_goals})")
         self.terminate_at_goal = bool(terminate_at_goal)
+        if task_goal is None and minigrid is not None:
+            task_goal = minigrid_task_goal(env)
+        if task_goal is not None and not 0 <= int(task_goal) < n_goals:
+            raise ValueError(f"task_goal must be a goal index in [0, {n_goals}), got {task_goal}")
+        #: goal of the wrapped env's own task (None: unknown)
+        self.task_goal = None if task_goal is None else int(task_goal)
         self.observation_space = spaces.Dict(
             {
                 "observation": spaces.Discrete(n_states),
