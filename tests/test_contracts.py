@@ -1,0 +1,466 @@
+"""SB3's contracts for every algorithm of this package, modelled on SB3's own test suite.
+
+One parametrized module instead of per-algorithm copies: save/load of the model and of the policy
+(``test_save_load.py``), predict shapes for single and batched observations (``test_predict.py``), seeded
+determinism (``test_deterministic.py``), the callbacks and their ``locals`` (``test_callbacks.py``), and seeding
+after load. Every entry of :data:`sb3_gcrl.algorithms.ALGORITHMS` needs a case below (checked), so a new algorithm
+cannot skip these contracts. Where an episodic table legitimately lacks a feature of SB3 (no optimizer, no
+gradient step), the test says so instead of skipping silently.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import (
+    BaseCallback,
+    CallbackList,
+    CheckpointCallback,
+    EvalCallback,
+    EveryNTimesteps,
+    StopTrainingOnMaxEpisodes,
+    StopTrainingOnNoModelImprovement,
+)
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+
+import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
+from sb3_gcrl.algorithms import ALGORITHMS, load_algorithm
+
+N_STEPS = 300
+
+
+@dataclass(frozen=True)
+class Case:
+    """How to build a small model of one algorithm on one env."""
+
+    algo: str
+    env_id: str
+    policy: str
+    kwargs: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def cls(self) -> type[BaseAlgorithm]:
+        return load_algorithm(self.algo)
+
+    def make_env(self, n_envs: int = 1, seed: int = 0) -> VecEnv:
+        return make_vec_env(self.env_id, n_envs=n_envs, seed=seed)
+
+    def make(self, env: VecEnv | gym.Env | None = None, seed: int = 0, **overrides: Any) -> BaseAlgorithm:
+        env = self.make_env(seed=seed) if env is None else env
+        return self.cls(self.policy, env, seed=seed, **{**self.kwargs, **overrides})
+
+
+TINY_NET = {"net_arch": [16]}
+CASES: dict[str, Case] = {
+    "cec": Case("cec", "Pendulum-v1", "CECPolicy", {"capacity": 500, "distance_threshold": 0.1}),
+    "mfec": Case("mfec", "CartPole-v1", "MFECPolicy", {"capacity_per_action": 500, "projection_dim": None}),
+    "two_memory_dqn": Case(
+        "two_memory_dqn",
+        "CartPole-v1",
+        "MlpPolicy",
+        {
+            "p_ec_schedule": 0.5,
+            "learning_starts": 50,
+            "buffer_size": 1_000,
+            "batch_size": 16,
+            "train_freq": 4,
+            "target_update_interval": 50,
+            "policy_kwargs": TINY_NET,
+        },
+    ),
+    "two_memory_sac": Case(
+        "two_memory_sac",
+        "Pendulum-v1",
+        "MlpPolicy",
+        {
+            "p_ec_schedule": 0.5,
+            "learning_starts": 50,
+            "buffer_size": 1_000,
+            "batch_size": 16,
+            "train_freq": 4,
+            "policy_kwargs": TINY_NET,
+        },
+    ),
+    "tabular_q": Case("tabular_q", "FrozenLake-v1", "TabularQPolicy", {"learning_starts": 10}),
+    "tabular_ec": Case("tabular_ec", "FrozenLake-v1", "TabularECPolicy"),
+    "tabular_2m": Case("tabular_2m", "FrozenLake-v1", "TabularTwoMemoryPolicy", {"p_ec_schedule": 0.5}),
+    "imgep": Case("imgep", "FrozenLake-v1", "TabularGoalPolicy"),
+}
+#: extra observation spaces (Dict goal observations) on top of one case per algorithm
+EXTRA_CASES: dict[str, Case] = {
+    "cec_dict": Case("cec", "GCRL/GrowingTreeGoal-v0", "MultiInputPolicy", {"capacity": 500}),
+    "two_memory_sac_dict": Case(
+        "two_memory_sac",
+        "GCRL/GrowingTreeGoal-v0",
+        "MultiInputPolicy",
+        {
+            "p_ec_schedule": 0.5,
+            "learning_starts": 50,
+            "buffer_size": 1_000,
+            "batch_size": 16,
+            "policy_kwargs": TINY_NET,
+        },
+    ),
+}
+ALL_CASES = {**CASES, **EXTRA_CASES}
+#: algorithms without a gradient optimizer (their policy *is* a table or an episodic memory)
+NO_OPTIMIZER = {"cec", "mfec", "tabular_q", "tabular_ec", "tabular_2m", "imgep"}
+
+algo_names = pytest.mark.parametrize("name", sorted(CASES))
+case_names = pytest.mark.parametrize("name", sorted(ALL_CASES))
+
+
+def test_every_registered_algorithm_has_a_contract_case():
+    assert set(CASES) == set(ALGORITHMS), "add a Case for each new algorithm in sb3_gcrl.algorithms.ALGORITHMS"
+    for name, case in CASES.items():
+        assert case.algo == name
+
+
+def observation_batch(model: BaseAlgorithm, n_steps: int = 20, seed: int = 123) -> Any:
+    """A batch of observations the model's own VecEnv produces (random actions), stacked along axis 0."""
+    env = model.get_env()
+    assert env is not None
+    env.seed(seed)
+    env.action_space.seed(seed)
+    obs = env.reset()
+    collected = [obs]
+    for _ in range(n_steps - 1):
+        obs, _, _, _ = env.step(np.array([env.action_space.sample() for _ in range(env.num_envs)]))
+        collected.append(obs)
+    if isinstance(obs, dict):
+        return {key: np.concatenate([o[key] for o in collected]) for key in obs}
+    return np.concatenate(collected)
+
+
+def assert_same_state(first: Any, second: Any, where: str = "") -> None:
+    """Recursive exact equality of parameters: tensors, arrays, scalars, dicts, lists."""
+    if isinstance(first, dict):
+        assert isinstance(second, dict) and set(first) == set(second), f"{where}: keys {set(first) ^ set(second)}"
+        for key in first:
+            assert_same_state(first[key], second[key], f"{where}/{key}")
+    elif isinstance(first, (list, tuple)):
+        assert len(first) == len(second), where
+        for i, (a, b) in enumerate(zip(first, second)):
+            assert_same_state(a, b, f"{where}[{i}]")
+    elif isinstance(first, th.Tensor):
+        assert th.equal(first.cpu(), th.as_tensor(second).cpu()), where
+    elif isinstance(first, np.ndarray):
+        np.testing.assert_array_equal(first, second, err_msg=where)
+    else:
+        assert first == second, where
+
+
+# ---------------------------------------------------------------------------------------------------- predict
+@case_names
+@pytest.mark.parametrize("deterministic", [True, False])
+def test_predict_single_and_batched_shapes(name: str, deterministic: bool):
+    case = ALL_CASES[name]
+    vec_env = case.make_env(n_envs=2)
+    model = case.make(vec_env)
+    action_space = model.action_space
+    batch = vec_env.reset()
+    actions, state = model.predict(batch, deterministic=deterministic)
+    assert state is None
+    assert isinstance(actions, np.ndarray)
+    assert actions.shape == (2, *action_space.shape)
+    assert all(action_space.contains(np.asarray(a, dtype=action_space.dtype)) for a in actions)
+
+    single = {k: v[0] for k, v in batch.items()} if isinstance(batch, dict) else batch[0]
+    action, state = model.predict(single, deterministic=deterministic)
+    assert state is None
+    assert isinstance(action, np.ndarray), f"predict on one observation returned {type(action)}"
+    assert action.shape == action_space.shape
+    assert action_space.contains(action.astype(action_space.dtype))
+    # the recurrent-policy arguments of SB3's signature are accepted and passed through
+    _, state = model.predict(batch, state=None, episode_start=np.ones(2, dtype=bool), deterministic=deterministic)
+    assert state is None
+
+
+@algo_names
+def test_predict_rejects_a_wrong_observation_shape(name: str):
+    model = CASES[name].make()
+    space = model.observation_space
+    wrong: Any
+    if isinstance(space, gym.spaces.Dict):
+        wrong = {k: np.zeros((3, 3, 7)) for k in space.spaces}
+    elif isinstance(space, gym.spaces.Discrete):
+        wrong = np.zeros((2, 3, 4), dtype=np.int64)
+    else:
+        wrong = np.zeros((*space.shape, 7), dtype=np.float32)
+    with pytest.raises(ValueError):
+        model.predict(wrong)
+
+
+@algo_names
+def test_predict_on_the_users_own_env_and_evaluate_policy(name: str):
+    case = CASES[name]
+    model = case.make()
+    env = Monitor(gym.make(case.env_id))
+    obs, _ = env.reset(seed=0)
+    action, _ = model.predict(obs, deterministic=True)
+    assert env.action_space.contains(np.asarray(action).astype(env.action_space.dtype))
+    mean, std = evaluate_policy(model, env, n_eval_episodes=2, deterministic=True)
+    assert np.isfinite(mean) and np.isfinite(std)
+
+
+# ---------------------------------------------------------------------------------------------------- save/load
+@case_names
+def test_save_load_restores_predictions_and_parameters(name: str, tmp_path: Path):
+    case = ALL_CASES[name]
+    model = case.make()
+    model.learn(N_STEPS)
+    observations = observation_batch(model)
+    expected, _ = model.predict(observations, deterministic=True)
+    params = model.get_parameters()
+
+    model.save(tmp_path / "model.zip")
+    for env in (None, case.make_env()):
+        loaded = case.cls.load(tmp_path / "model.zip", env=env)
+        actions, _ = loaded.predict(observations, deterministic=True)
+        np.testing.assert_array_equal(actions, expected)
+        assert_same_state(loaded.get_parameters(), params, "parameters")
+        assert loaded.num_timesteps == model.num_timesteps
+    # the loaded model keeps learning where it stopped
+    loaded.learn(100, reset_num_timesteps=False)
+    assert loaded.num_timesteps >= model.num_timesteps + 100
+
+
+@algo_names
+def test_save_to_a_file_object_and_without_extension(name: str, tmp_path: Path):
+    case = CASES[name]
+    model = case.make()
+    model.learn(100)
+    observations = observation_batch(model)
+    expected, _ = model.predict(observations, deterministic=True)
+    buffer = io.BytesIO()
+    model.save(buffer)
+    buffer.seek(0)
+    np.testing.assert_array_equal(case.cls.load(buffer).predict(observations, deterministic=True)[0], expected)
+    model.save(tmp_path / "no_extension")  # SB3 appends .zip
+    loaded = case.cls.load(tmp_path / "no_extension")
+    np.testing.assert_array_equal(loaded.predict(observations, deterministic=True)[0], expected)
+
+
+@case_names
+def test_policy_save_load(name: str, tmp_path: Path):
+    case = ALL_CASES[name]
+    model = case.make()
+    model.learn(N_STEPS)
+    observations = observation_batch(model)
+    expected, _ = model.predict(observations, deterministic=True)
+    model.policy.save(tmp_path / "policy.pth")
+    policy = type(model.policy).load(tmp_path / "policy.pth")
+    actions, _ = policy.predict(observations, deterministic=True)
+    np.testing.assert_array_equal(actions, expected)
+
+
+@algo_names
+def test_set_parameters_copies_the_learned_state(name: str):
+    case = CASES[name]
+    trained = case.make(seed=0)
+    trained.learn(N_STEPS)
+    observations = observation_batch(trained)
+    expected, _ = trained.predict(observations, deterministic=True)
+    fresh = case.make(seed=1)
+    fresh.set_parameters(trained.get_parameters(), exact_match=True)
+    np.testing.assert_array_equal(fresh.predict(observations, deterministic=True)[0], expected)
+    with pytest.raises(ValueError):
+        fresh.set_parameters({"not_a_module": {}}, exact_match=True)
+
+
+@algo_names
+def test_optimizer_state_is_saved_where_there_is_one(name: str):
+    model = CASES[name].make()
+    state_dicts, _ = model._get_torch_save_params()
+    optimizers = [n for n in state_dicts if "optimizer" in n]
+    if name in NO_OPTIMIZER:
+        # an episodic/tabular agent has no gradient step: nothing to save, and nothing claims otherwise
+        assert optimizers == [], f"{name} has no optimizer but lists {optimizers}"
+    else:
+        assert optimizers, f"{name} trains a network: its optimizer state must be saved"
+        params = model.get_parameters()
+        assert all(n in params for n in optimizers)
+
+
+# ---------------------------------------------------------------------------------------------------- determinism
+def rollout_actions(model: BaseAlgorithm, n_steps: int = 50) -> tuple[np.ndarray, np.ndarray]:
+    env = model.get_env()
+    assert env is not None
+    obs = env.reset()
+    actions, rewards = [], []
+    for _ in range(n_steps):
+        action, _ = model.predict(obs, deterministic=False)
+        obs, reward, _, _ = env.step(action)
+        actions.append(np.asarray(action, dtype=np.float64).copy())
+        rewards.append(reward.copy())
+    return np.array(actions), np.array(rewards)
+
+
+@algo_names
+def test_seeded_training_is_deterministic(name: str):
+    case = CASES[name]
+    runs = []
+    for _ in range(2):
+        model = case.make(seed=3)
+        model.learn(N_STEPS)
+        runs.append((rollout_actions(model), model.get_parameters()))
+    np.testing.assert_array_equal(runs[0][0][0], runs[1][0][0])
+    np.testing.assert_array_equal(runs[0][0][1], runs[1][0][1])
+    assert_same_state(runs[0][1], runs[1][1], "parameters")
+
+
+@algo_names
+def test_seeding_after_load_makes_sampling_and_learning_reproducible(name: str, tmp_path: Path):
+    case = CASES[name]
+    model = case.make()
+    model.learn(N_STEPS)
+    model.save(tmp_path / "model.zip")
+    observations = observation_batch(model)
+    results = []
+    for _ in range(2):
+        loaded = case.cls.load(tmp_path / "model.zip", env=case.make_env(seed=5))
+        loaded.set_random_seed(7)
+        sampled = [loaded.predict(observations, deterministic=False)[0] for _ in range(5)]
+        loaded.learn(100, reset_num_timesteps=False)
+        results.append((sampled, loaded.get_parameters()))
+    for a, b in zip(results[0][0], results[1][0]):
+        np.testing.assert_array_equal(a, b)
+    assert_same_state(results[0][1], results[1][1], "parameters after learn")
+
+
+# ---------------------------------------------------------------------------------------------------- callbacks
+class LocalsRecorder(BaseCallback):
+    """Checks the hooks SB3 promises and the locals its stock callbacks read."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.events: list[str] = []
+        self.missing: set[str] = set()
+
+    def _on_training_start(self) -> None:
+        self.events.append("training_start")
+
+    def _on_rollout_start(self) -> None:
+        self.events.append("rollout_start")
+
+    def _on_step(self) -> bool:
+        for key in ("dones", "infos", "new_obs", "rewards"):
+            if key not in self.locals:
+                self.missing.add(key)
+        if "dones" in self.locals:
+            assert len(self.locals["dones"]) == self.training_env.num_envs
+        return True
+
+    def _on_rollout_end(self) -> None:
+        self.events.append("rollout_end")
+
+    def _on_training_end(self) -> None:
+        self.events.append("training_end")
+
+
+@algo_names
+def test_callbacks_see_sb3s_hooks_and_locals(name: str, tmp_path: Path):
+    case = CASES[name]
+    model = case.make(env=case.make_env(n_envs=2))
+    recorder = LocalsRecorder()
+    eval_env = case.make_env()
+    callbacks = CallbackList(
+        [
+            recorder,
+            CheckpointCallback(save_freq=50, save_path=str(tmp_path / "checkpoints"), name_prefix="model"),
+            EvalCallback(
+                eval_env,
+                eval_freq=50,
+                n_eval_episodes=2,
+                best_model_save_path=str(tmp_path / "best"),
+                callback_after_eval=StopTrainingOnNoModelImprovement(max_no_improvement_evals=100),
+                warn=False,
+            ),
+            EveryNTimesteps(n_steps=40, callback=CheckpointCallback(save_freq=1, save_path=str(tmp_path / "every"))),
+        ]
+    )
+    model.learn(N_STEPS, callback=callbacks)
+    assert recorder.missing == set(), f"{name} does not put {recorder.missing} into the callback locals"
+    assert recorder.events[0] == "training_start" and recorder.events[-1] == "training_end"
+    assert recorder.events.count("training_start") == 1 and recorder.events.count("training_end") == 1
+    assert recorder.events.count("rollout_start") >= 1
+    assert recorder.events.count("rollout_start") == recorder.events.count("rollout_end")
+    assert recorder.n_calls == pytest.approx(model.num_timesteps / 2, abs=1)
+    assert list((tmp_path / "checkpoints").glob("model_*_steps.zip"))
+    assert (tmp_path / "best" / "best_model.zip").exists()
+    assert list((tmp_path / "every").glob("*.zip"))
+    case.cls.load(tmp_path / "best" / "best_model.zip")  # the checkpoints are loadable models
+
+
+@algo_names
+def test_stop_training_on_max_episodes(name: str):
+    case = CASES[name]
+    model = case.make()
+    model.learn(20_000, callback=StopTrainingOnMaxEpisodes(max_episodes=2))
+    assert model.num_timesteps < 20_000
+
+
+class StopAfter(BaseCallback):
+    def __init__(self, n_calls: int) -> None:
+        super().__init__()
+        self.stop_at = n_calls
+
+    def _on_step(self) -> bool:
+        return self.n_calls < self.stop_at
+
+
+@algo_names
+def test_a_callback_returning_false_stops_training(name: str):
+    model = CASES[name].make()
+    model.learn(5_000, callback=StopAfter(30))
+    assert model.num_timesteps <= 30 * model.n_envs + 64  # off-policy SB3 may finish its train_freq chunk
+
+
+@algo_names
+def test_progress_bar_logger_and_tensorboard_run_name(name: str, tmp_path: Path):
+    case = CASES[name]
+    model = case.make(tensorboard_log=str(tmp_path / "tb"))
+    model.learn(N_STEPS, progress_bar=True, log_interval=1)
+    runs = sorted(p.name for p in (tmp_path / "tb").iterdir())
+    assert runs == [f"{case.cls.__name__}_1"], f"tensorboard run named {runs}, expected the class name"
+
+    model.set_logger(configure(str(tmp_path / "csv"), ["csv"]))
+    model.learn(N_STEPS, reset_num_timesteps=False, log_interval=1)
+    lines = (tmp_path / "csv" / "progress.csv").read_text().splitlines()
+    assert len(lines) >= 2 and "time/total_timesteps" in lines[0]
+
+
+# ---------------------------------------------------------------------------------------------------- envs
+@algo_names
+def test_learn_on_several_envs_and_set_env_after_load(name: str, tmp_path: Path):
+    case = CASES[name]
+    model = case.make(env=case.make_env(n_envs=2))
+    model.learn(N_STEPS)
+    assert model.num_timesteps >= N_STEPS
+    model.save(tmp_path / "model.zip")
+    loaded = case.cls.load(tmp_path / "model.zip")
+    assert loaded.get_env() is None
+    loaded.set_env(case.make_env(n_envs=2))
+    loaded.learn(100, reset_num_timesteps=False)
+
+
+@algo_names
+def test_set_env_accepts_the_raw_env_that_load_accepts(name: str, tmp_path: Path):
+    case = CASES[name]
+    case.make().save(tmp_path / "model.zip")
+    loaded = case.cls.load(tmp_path / "model.zip", env=gym.make(case.env_id))
+    loaded.set_env(gym.make(case.env_id))
+    loaded.learn(50, reset_num_timesteps=False)
+    assert isinstance(loaded.get_env(), DummyVecEnv)
