@@ -101,6 +101,17 @@ class Method:
         )
 
 
+def method_label(spec: str) -> str:
+    """The label a method spec gets in tables, plots and run folders: ``LABEL``, else the config's stem, else ``ALGO``.
+
+    :param spec: ``ALGO``, ``ALGO:CONFIG`` or ``LABEL=ALGO[:CONFIG]``.
+    :return: the label (not validated; :func:`parse_method` checks it).
+    """
+    label, _, body = spec.rpartition("=")
+    algo, _, config_name = body.partition(":")
+    return label or (Path(config_name).stem if config_name else algo)
+
+
 def parse_method(spec: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Method:
     """Parse ``ALGO``, ``ALGO:CONFIG`` or ``LABEL=ALGO[:CONFIG]`` (see the module docstring).
 
@@ -130,7 +141,7 @@ def parse_method(spec: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Method:
                 f"Config {config_name!r} of method {spec!r} not found at {config}. Files in {config_dir}: {stems}"
             )
         config = config.resolve()
-    label = label or (config.stem if config is not None else algo)
+    label = method_label(spec)
     if not _LABEL_RE.match(label):
         raise ValueError(f"Method label {label!r} may only use letters, digits and _ . - + (it names folders)")
     return Method(label=label, algo=algo, config=config)

@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from sb3_gcrl.compare.runner import ComparisonResult
 
 
 @dataclass(frozen=True)
@@ -35,42 +40,116 @@ class Preset:
     metric: str = "auto"
     thesis: str = ""
 
+    def compare_kwargs(self, **overrides: Any) -> dict[str, Any]:
+        """Keyword arguments of :func:`~sb3_gcrl.compare.runner.compare` for this preset.
+
+        :param overrides: values that replace the preset's (``methods``, ``envs``, ``seeds``, ``n_timesteps``,
+            ``eval_freq``, ``n_eval_episodes``, ``metric``, ``title``) or add to it (``hyperparams`` and
+            ``env_kwargs`` are merged over the preset's); ``None`` keeps the preset's value. Any other
+            :func:`~sb3_gcrl.compare.runner.compare` argument (``output``, ``n_workers``...) is passed through.
+        :return: the arguments, ready for ``compare(**kwargs)``.
+        """
+        kwargs: dict[str, Any] = {
+            "methods": list(self.methods),
+            "envs": list(self.envs),
+            "seeds": list(self.seeds),
+            "n_timesteps": self.n_timesteps,
+            "eval_freq": self.eval_freq,
+            "n_eval_episodes": self.n_eval_episodes,
+            "metric": self.metric,
+            "title": self.description,
+        }
+        for key in ("hyperparams", "env_kwargs"):
+            kwargs[key] = {**getattr(self, key), **(overrides.pop(key, None) or {})}
+        kwargs.update({key: value for key, value in overrides.items() if value is not None})
+        return kwargs
+
+
+def config_methods(algo: str, pattern: str, names: tuple[str, ...]) -> tuple[str, ...]:
+    """Method specs ``NAME=ALGO:CONFIG`` for a family of zoo configs (``pattern`` holds ``{name}``).
+
+    :param algo: algorithm of every method.
+    :param pattern: zoo config stem with a ``{name}`` field, e.g. ``"reset_free_pointumaze_{name}"``.
+    :param names: the family members, which also label the methods.
+    :return: the method specs.
+    """
+    return tuple(f"{name}={algo}:{pattern.format(name=name)}" for name in names)
+
+
+#: Ch. 3 methods of Fig. 3.4 and the ablations of Sec. 3.5.3 (``zoo_configs/reset_free_pointumaze_<name>.yml``)
+CH3_METHODS = ("oracle", "naive", "goexplore", "morefree")
+CH3_ABLATIONS = ("wo_bf", "wo_relabel", "alpha1")
+#: Ch. 6 variants (``zoo_configs/post_exploration_<task>_<variant>.yml``)
+CH6_VARIANTS = ("off", "on", "adaptive")
+#: MinAtar settings that are env constructor arguments (not RL-Zoo YAML keys): the authors' Breakout sticky-action
+#: probability, and a time limit (MinAtar registers none; a greedy policy can otherwise keep an episode going forever)
+MINATAR_BREAKOUT_ENV_KWARGS: dict[str, Any] = {"sticky_action_prob": 0.2, "max_episode_steps": 10_000}
 
 PRESETS: dict[str, Preset] = {
     "quick": Preset(
-        description="CEC vs SAC on GrowingTree (sparse reward, 1-D): episodic control solves it in a few "
-        "thousand steps, SAC usually not at this budget",
+        description="CEC vs SAC on GrowingTree (sparse reward, 1-D): episodic control solves it within about "
+        "1,000 steps, SAC not at this budget",
         methods=("cec", "sac"),
         envs=("GCRL/GrowingTree-v0",),
         seeds=(0, 1, 2),
-        n_timesteps=5_000,
-        eval_freq=500,
-        n_eval_episodes=5,
+        n_timesteps=2_000,
+        eval_freq=200,
+        # GrowingTree starts at the same height with the same goal and both evaluation policies are greedy, so
+        # every evaluation episode of a run is the same episode: one is exact
+        n_eval_episodes=1,
         thesis="Ch. 4 toy example (Table 4.3): the authors' notebook solves it with CEC after 2-4k steps",
     ),
     "ch3": Preset(
-        description="Reset-free PointUMaze: episodic oracle vs naive reset-free vs MoReFree (SAC + HER)",
-        methods=(
-            "oracle=sac:reset_free_pointumaze_oracle",
-            "naive=sac:reset_free_pointumaze_naive",
-            "morefree=sac:reset_free_pointumaze_morefree",
-        ),
+        description="Reset-free PointUMaze: episodic oracle vs naive reset-free vs Go-Explore (alpha = 0) vs "
+        "MoReFree (SAC + HER)",
+        methods=config_methods("sac", "reset_free_pointumaze_{name}", CH3_METHODS),
         envs=("GCRL/PointUMazeGoal-v0",),
         seeds=(0, 1, 2),
-        n_timesteps=50_000,
-        eval_freq=5_000,
-        n_eval_episodes=5,
-        thesis="Fig. 3.4 (PointUMaze panel) at 5% of the thesis's 1e6 steps, model-free port of MoReFree",
+        n_timesteps=100_000,
+        eval_freq=10_000,
+        n_eval_episodes=10,
+        thesis="Fig. 3.4-3.5 (PointUMaze panel) at 10% of the thesis's 1e6 steps, model-free port of MoReFree",
+    ),
+    "ch3-ablations": Preset(
+        description="MoReFree ablations on reset-free PointUMaze: without Back-and-Forth, without task-relevant "
+        "relabeling, only task goals (alpha = 1)",
+        methods=config_methods("sac", "reset_free_pointumaze_{name}", CH3_ABLATIONS),
+        envs=("GCRL/PointUMazeGoal-v0",),
+        seeds=(0, 1, 2),
+        n_timesteps=100_000,
+        eval_freq=10_000,
+        n_eval_episodes=10,
+        thesis="Sec. 3.5.3 ablations at 10% of the thesis's 1e6 steps, model-free port",
+    ),
+    "ch3-quick": Preset(
+        description="Smoke test of the ch3 preset (one seed, a few hundred steps: no learning to speak of)",
+        methods=config_methods("sac", "reset_free_pointumaze_{name}", ("naive", "morefree")),
+        envs=("GCRL/PointUMazeGoal-v0",),
+        seeds=(0,),
+        n_timesteps=600,
+        eval_freq=300,
+        n_eval_episodes=1,
+        thesis="pipeline check of reproduce_ch3.py",
     ),
     "ch4": Preset(
         description="CEC vs SAC on the sparse-reward navigation and MountainCar tasks of Ch. 4",
         methods=("cec", "sac"),
         envs=("GCRL/PointUMaze-v0", "GCRL/Point4Rooms-v0", "GCRL/SparseMountainCarContinuous-v0"),
-        seeds=(0, 1, 2),
-        n_timesteps=20_000,
-        eval_freq=2_000,
+        seeds=(0, 1, 2, 3, 4),
+        n_timesteps=100_000,
+        eval_freq=10_000,
         n_eval_episodes=5,
-        thesis="Figs. 4.3-4.4 at 20% of the thesis's 1e5 steps and 3 of its 5 seeds",
+        thesis="Figs. 4.3-4.4 at the thesis's 1e5 steps and 5 seeds (authors: 5 episodes every 5,000 steps)",
+    ),
+    "ch4-quick": Preset(
+        description="Smoke test of the ch4 preset (one seed, a few hundred steps)",
+        methods=("cec", "sac"),
+        envs=("GCRL/PointUMaze-v0",),
+        seeds=(0,),
+        n_timesteps=400,
+        eval_freq=200,
+        n_eval_episodes=1,
+        thesis="pipeline check of reproduce_ch4.py",
     ),
     "ch5": Preset(
         description="Tabular 2M vs Q-learning vs episodic control on the stochastic WindyGrid",
@@ -83,6 +162,17 @@ PRESETS: dict[str, Preset] = {
         metric="mean_return",
         thesis="Fig. 5.5 (left) at 25% of the authors' 2e5 steps; memory-choice panel as Fig. 5.6's top row",
     ),
+    "ch5-quick": Preset(
+        description="Smoke test of the ch5 preset (one seed, 2,000 steps)",
+        methods=("tabular_2m", "tabular_q", "tabular_ec"),
+        envs=("GCRL/WindyGrid-v0",),
+        seeds=(0,),
+        n_timesteps=2_000,
+        eval_freq=500,
+        n_eval_episodes=2,
+        metric="mean_return",
+        thesis="pipeline check of reproduce_ch5.py windygrid",
+    ),
     "ch5-minatar": Preset(
         description="2M (TwoMemoryDQN) vs DQN vs MFEC on MinAtar Breakout",
         methods=("two_memory_dqn", "dqn=dqn:dqn_minatar", "mfec"),
@@ -91,10 +181,123 @@ PRESETS: dict[str, Preset] = {
         n_timesteps=100_000,
         eval_freq=10_000,
         n_eval_episodes=5,
-        env_kwargs={"sticky_action_prob": 0.2},  # the authors' Breakout setting (REFERENCE.md)
+        env_kwargs=MINATAR_BREAKOUT_ENV_KWARGS,
         thesis="Fig. 5.6 (Breakout) at 3% of the thesis's 3e6 steps, sticky actions 0.2 as the authors",
+    ),
+    "ch5-minatar-quick": Preset(
+        description="Smoke test of the ch5-minatar preset (one seed, 1,500 steps)",
+        methods=("two_memory_dqn", "dqn=dqn:dqn_minatar", "mfec"),
+        envs=("MinAtar/Breakout-v1",),
+        seeds=(0,),
+        n_timesteps=1_500,
+        eval_freq=500,
+        n_eval_episodes=1,
+        env_kwargs=MINATAR_BREAKOUT_ENV_KWARGS,
+        thesis="pipeline check of reproduce_ch5.py minatar",
+    ),
+    "ch6": Preset(
+        description="Tabular IMGEP on FourRooms: post-exploration off vs on (p_pe = 0.5) vs adaptive (ours)",
+        methods=config_methods("imgep", "post_exploration_fourrooms_{name}", CH6_VARIANTS),
+        envs=("GCRL/FourRoomsTabular-v0",),
+        seeds=(0, 1, 2, 3, 4),
+        n_timesteps=100_000,
+        eval_freq=10_000,
+        n_eval_episodes=5,
+        thesis="Fig. 6.3-6.4 / Table 6.2 (FourRooms) at half the thesis's 2e5 steps; all-goals success, entropy "
+        "and coverage from the saved models (reproduce_ch6.py)",
+    ),
+    "ch6-deep": Preset(
+        description="Deep IMGEP (DDPG + HER) on FetchReach: post-exploration off vs on vs adaptive (ours)",
+        methods=config_methods("ddpg", "post_exploration_fetchreach_ddpg_{name}", CH6_VARIANTS),
+        envs=("FetchReach-v4",),
+        seeds=(0, 1, 2, 3, 4),
+        n_timesteps=10_000,
+        eval_freq=2_000,
+        n_eval_episodes=5,
+        thesis="Fig. 6.5 (FetchReach) at 20% of the config's 5e4 steps; all-goals success over a goal grid from "
+        "the saved models (reproduce_ch6.py)",
+    ),
+    "ch6-quick": Preset(
+        description="Smoke test of the ch6 preset (one seed, 2,000 steps)",
+        methods=config_methods("imgep", "post_exploration_fourrooms_{name}", CH6_VARIANTS),
+        envs=("GCRL/FourRoomsTabular-v0",),
+        seeds=(0,),
+        n_timesteps=2_000,
+        eval_freq=1_000,
+        n_eval_episodes=2,
+        thesis="pipeline check of reproduce_ch6.py",
     ),
 }
 
 #: preset run when ``sb3-gcrl compare`` gets no arguments at all
 DEFAULT_PRESET = "quick"
+
+#: the authors' per-game sticky-action probability on MinAtar (repo yangzhao-666/2m; MinAtar's default is 0.1)
+MINATAR_STICKY_ACTION_PROB: dict[str, float] = {
+    "Breakout": 0.2,
+    "Asterix": 0.1,
+    "Seaquest": 0.05,
+    "SpaceInvaders": 0.02,
+    "Freeway": 0.01,
+}
+
+
+def minatar_env_kwargs(game: str) -> dict[str, Any]:
+    """Env constructor arguments of a MinAtar game in the Ch. 5 presets: the authors' sticky actions, a time limit.
+
+    :param game: ``Breakout``, ``Asterix``, ``Seaquest``, ``SpaceInvaders`` or ``Freeway``.
+    :return: keyword arguments for ``gym.make("MinAtar/<game>-v1", ...)`` (``--env-kwargs``).
+    :raises ValueError: for another game.
+    """
+    if game not in MINATAR_STICKY_ACTION_PROB:
+        raise ValueError(f"Unknown MinAtar game {game!r}; choose one of {sorted(MINATAR_STICKY_ACTION_PROB)}")
+    return {**MINATAR_BREAKOUT_ENV_KWARGS, "sticky_action_prob": MINATAR_STICKY_ACTION_PROB[game]}
+
+
+def preset_labels(name: str) -> list[str]:
+    """Labels of a preset's methods (as they appear in tables, plots and run folders)."""
+    from sb3_gcrl.compare.methods import method_label
+
+    return [method_label(spec) for spec in get_preset(name).methods]
+
+
+def get_preset(name: str) -> Preset:
+    """The preset called ``name``.
+
+    :raises ValueError: unknown name; the message lists the presets.
+    """
+    if name not in PRESETS:
+        raise ValueError(f"Unknown preset {name!r}; choose one of {sorted(PRESETS)} (sb3-gcrl compare --list-presets)")
+    return PRESETS[name]
+
+
+def select_methods(names: Sequence[str], labels: Sequence[str] | None = None) -> list[str]:
+    """Method specs of the presets ``names`` whose labels are in ``labels`` (all of them when ``labels`` is None).
+
+    :param names: preset names; their methods are pooled in order.
+    :param labels: labels to keep, in the order wanted.
+    :return: the method specs.
+    :raises ValueError: a label that none of the presets has; the message lists the valid labels.
+    """
+    from sb3_gcrl.compare.methods import method_label
+
+    specs = {method_label(spec): spec for name in names for spec in get_preset(name).methods}
+    if labels is None:
+        return list(specs.values())
+    unknown = [label for label in labels if label not in specs]
+    if unknown:
+        raise ValueError(f"Unknown method(s) {unknown} for preset(s) {list(names)}; choose from {list(specs)}")
+    return [specs[label] for label in labels]
+
+
+def run_preset(name: str, output: str | Path, **overrides: Any) -> ComparisonResult:
+    """Run a preset through :func:`~sb3_gcrl.compare.runner.compare` (resumable like ``sb3-gcrl compare``).
+
+    :param name: preset name.
+    :param output: comparison folder.
+    :param overrides: see :meth:`Preset.compare_kwargs` (``None`` keeps the preset's value).
+    :return: the comparison's result.
+    """
+    from sb3_gcrl.compare.runner import compare
+
+    return compare(**get_preset(name).compare_kwargs(output=output, **overrides))
