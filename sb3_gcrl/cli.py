@@ -41,13 +41,16 @@ commands:
 
 
 def register_zoo_algorithms() -> None:
-    """Insert every algorithm of :data:`sb3_gcrl.algorithms.ALGORITHMS` into ``rl_zoo3.utils.ALGOS``."""
+    """Insert every algorithm of :data:`sb3_gcrl.algorithms.ALGORITHMS` into ``rl_zoo3.utils.ALGOS``, and their
+    optuna samplers into RL-Zoo's sampler table (``-optimize``)."""
     from rl_zoo3.utils import ALGOS
 
     from sb3_gcrl.algorithms import ALGORITHMS, load_algorithm
+    from sb3_gcrl.hyperparams_opt import register_zoo_samplers
 
     for name in ALGORITHMS:
         ALGOS.setdefault(name, load_algorithm(name))
+    register_zoo_samplers()
 
 
 def _option_value(argv: Sequence[str], *flags: str) -> str | None:
