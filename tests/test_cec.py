@@ -207,3 +207,55 @@ def test_growing_tree_is_solved_within_5k_steps():
         model.learn(5000, callback=evaluation, log_interval=None)
         solved += max(evaluation.returns) >= 1.0
     assert solved >= 4
+
+
+def test_loading_another_algorithms_file_says_which_algorithm_saved_it(tmp_path):
+    from sb3_gcrl import MFEC
+
+    MFEC("MFECPolicy", gym.make("CartPole-v1"), seed=0).save(tmp_path / "mfec.zip")
+    with pytest.raises(ValueError, match=r"a model of MFEC, not of CEC.*MFEC\.load"):
+        CEC.load(tmp_path / "mfec.zip")
+    with pytest.raises(ValueError, match=r"a model of MFEC, not of CEC"):
+        CEC.load(tmp_path / "mfec.zip", env=gym.make("CartPole-v1"))
+    CEC("CECPolicy", LineEnv(), seed=0).save(tmp_path / "cec.zip")
+    with pytest.raises(ValueError, match=r"a model of CEC, not of MFEC.*CEC\.load"):
+        MFEC.load(tmp_path / "cec.zip")
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        (dict(capacity=1.7), ValueError, "capacity must be an integer, got 1.7"),
+        (dict(capacity=0), ValueError, "capacity must be >= 1"),
+        (dict(capacity=None), TypeError, "capacity must be an integer"),
+        (dict(distance_threshold=-0.1), ValueError, "distance_threshold"),
+        (dict(distance_threshold=0.0), ValueError, "distance_threshold"),
+        (dict(distance_threshold=np.inf), ValueError, "distance_threshold"),
+        (dict(filter_factor=0.0), ValueError, "filter_factor"),
+        (dict(n_neighbors=0), ValueError, "n_neighbors"),
+        (dict(n_neighbors=1.5), ValueError, "n_neighbors"),
+        (dict(temperature=0.0), ValueError, "temperature"),
+        (dict(temperature=-1.0), ValueError, "temperature"),
+        (dict(noise_std=-0.1), ValueError, "noise_std"),
+        (dict(noise_std=np.nan), ValueError, "noise_std"),
+        (dict(gamma=-0.1), ValueError, "gamma"),
+        (dict(exploration_initial_eps=1.1), ValueError, "exploration_initial_eps"),
+        (dict(exploration_final_eps=1.5), ValueError, "exploration_final_eps"),
+        (dict(exploration_fraction=-1.0), ValueError, "exploration_fraction"),
+        (dict(projection_dim=0), ValueError, "projection_dim"),
+        (dict(knn_backend="annoy"), ValueError, "knn_backend"),
+        (dict(rebuild_threshold=1.5), ValueError, "rebuild_threshold"),
+        (dict(stats_window_size=0), ValueError, "stats_window_size"),
+        (dict(observation_keys=["observation"]), ValueError, "observation_keys"),
+        (dict(policy_kwargs=dict(capacity=2.5)), ValueError, "capacity"),
+    ],
+)
+def test_invalid_hyperparameters_fail_at_construction(kwargs, error, match):
+    with pytest.raises(error, match=match):
+        CEC("CECPolicy", LineEnv(), **kwargs)
+
+
+def test_integral_float_capacity_is_accepted():
+    model = CEC("CECPolicy", LineEnv(), capacity=1e3)  # YAML's !!float 1e3
+    assert model.capacity == model.policy.memory.capacity == 1000
+    assert isinstance(model.capacity, int)

@@ -3,6 +3,7 @@
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch as th
 from gymnasium import spaces
 from scipy import stats
 from stable_baselines3.common.vec_env import DummyVecEnv
@@ -335,3 +336,176 @@ def test_learn_loop_updates_memory_with_each_envs_whole_episode(algo):
         length = 3 + 2 * env_id
         np.testing.assert_array_equal(keys, 10 * env_id + np.arange(length))
         np.testing.assert_allclose(returns, discounted_returns(np.arange(1.0, length + 1), 0.5))
+
+
+# ---------------------------------------------------------------- SB3 contracts of CEC and MFEC (shared plumbing)
+class _SpacesEnv(gym.Env):
+    """Random observations of a given space; reward 1 with probability 0.2, episodes of 5 steps."""
+
+    def __init__(self, observation_space: spaces.Space, action_space: spaces.Space, reward: float = 1.0) -> None:
+        self.observation_space, self.action_space, self.reward, self.t = observation_space, action_space, reward, 0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.observation_space.seed(int(self.np_random.integers(2**31)))
+        self.t = 0
+        return self.observation_space.sample(), {}
+
+    def step(self, action):
+        self.t += 1
+        reward = self.reward if self.np_random.random() < 0.2 else 0.0
+        return self.observation_space.sample(), reward, False, self.t >= 5, {}
+
+
+BOX_OBS = spaces.Box(-1, 1, (3,), np.float32)
+DICT_OBS = spaces.Dict({"observation": spaces.Box(-1, 1, (2,), np.float32), "desired_goal": spaces.Box(-1, 1, (2,))})
+ACTION_SPACES = {CEC: spaces.Box(-1, 1, (2,), np.float32), MFEC: spaces.Discrete(3)}
+
+
+def _make(algo, obs_space=BOX_OBS, reward=1.0, **kwargs):
+    policy = "MultiInputPolicy" if isinstance(obs_space, spaces.Dict) else "MlpPolicy"
+    return algo(policy, _SpacesEnv(obs_space, ACTION_SPACES[algo], reward), projection_dim=None, **kwargs)
+
+
+@pytest.mark.parametrize("obs_space", [BOX_OBS, DICT_OBS], ids=["box", "dict"])
+@pytest.mark.parametrize("algo", [CEC, MFEC])
+def test_predict_returns_what_stock_sb3_returns(algo, obs_space):
+    """One observation -> ndarray of shape action_space.shape (shape () for Discrete, as DQN); a batch -> (n, ...)."""
+    from stable_baselines3 import DQN, SAC
+
+    stock_algo = DQN if algo is MFEC else SAC
+    env = _SpacesEnv(obs_space, ACTION_SPACES[algo])
+    policy = "MultiInputPolicy" if isinstance(obs_space, spaces.Dict) else "MlpPolicy"
+    stock = stock_algo(policy, env, policy_kwargs=dict(net_arch=[4]), buffer_size=10, seed=0)
+    model = _make(algo, obs_space, seed=0)
+    single = obs_space.sample()
+    batch = {k: np.stack([v] * 4) for k, v in single.items()} if isinstance(single, dict) else np.stack([single] * 4)
+    for obs in (single, batch):
+        for deterministic in (True, False):
+            ours, _ = model.predict(obs, deterministic=deterministic)
+            expected, _ = stock.predict(obs, deterministic=deterministic)
+            assert type(ours) is type(expected) is np.ndarray
+            assert ours.shape == expected.shape and ours.dtype == expected.dtype
+            assert ACTION_SPACES[algo].contains(ours if obs is single else ours[0])
+
+
+@pytest.mark.parametrize("algo", [CEC, MFEC])
+def test_policy_save_load_restores_memory_exactly(algo, tmp_path):
+    model = _make(algo, seed=0)
+    model.learn(200, log_interval=None)
+    assert len(model.policy.memory) > 0
+    model.policy.save(str(tmp_path / "policy.pth"))
+    loaded = type(model.policy).load(str(tmp_path / "policy.pth"))
+    original, restored = model.policy.memory.state_dict(), loaded.memory.state_dict()
+    assert original.keys() == restored.keys()
+    for name in original:
+        np.testing.assert_array_equal(original[name], restored[name])
+    obs = np.random.default_rng(0).uniform(-1, 1, (50, 3)).astype(np.float32)
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+
+
+def _save_with_corrupted_memory(model, path, corrupt) -> None:
+    from stable_baselines3.common.save_util import load_from_zip_file, save_to_zip_file
+
+    model.save(path)
+    data, params, variables = load_from_zip_file(path)
+    corrupt(params["policy"]["_extra_state"])
+    save_to_zip_file(path, data=data, params=params, pytorch_variables=variables)
+
+
+def _drop_values(state):
+    name = next(k for k in state if k.endswith("values"))
+    state[name] = state[name][:-1]
+
+
+def _widen_keys(state):
+    for name in [k for k in state if k.endswith("keys")]:
+        state[name] = th.cat([state[name], state[name][:, :1]], dim=1)
+
+
+@pytest.mark.parametrize(
+    "corrupt, match",
+    [(_drop_values, r"'values' has shape"), (_widen_keys, r"keys have shape .* expects \(n, 3\)")],
+    ids=["rows", "key_dim"],
+)
+@pytest.mark.parametrize("algo", [CEC, MFEC])
+def test_load_surfaces_the_memorys_own_error(algo, corrupt, match, tmp_path):
+    """A memory that cannot be restored fails with its own error, not SB3's KeyError: 'policy.optimizer'."""
+    from sb3_gcrl.memory.control import MemoryRestoreError
+
+    model = _make(algo, seed=0)
+    model.learn(200, log_interval=None)
+    _save_with_corrupted_memory(model, tmp_path / "bad.zip", corrupt)
+    with pytest.raises(MemoryRestoreError, match=match) as info:
+        algo.load(tmp_path / "bad.zip")
+    assert isinstance(info.value.__cause__, ValueError)
+
+
+@pytest.mark.parametrize("reward", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("algo", [CEC, MFEC])
+def test_non_finite_rewards_raise_before_reaching_the_memory(algo, reward):
+    model = _make(algo, reward=reward, seed=0)
+    with pytest.raises(ValueError, match=rf"reward {reward}.*finite"):
+        model.learn(100, log_interval=None)
+    assert np.isfinite(
+        model.policy.memory.state_dict()[next(k for k in model.policy.memory.state_dict() if "values" in k)]
+    ).all()
+
+
+def test_memories_reject_non_finite_returns():
+    cec, mfec = CECMemory(key_dim=1, action_dim=1), MFECMemory(key_dim=1, n_actions=2)
+    keys, returns = np.zeros((3, 1)), np.array([1.0, np.nan, 0.0])
+    with pytest.raises(ValueError, match="returns contain nan"):
+        cec.update_episode(keys, np.zeros((3, 1)), returns)
+    with pytest.raises(ValueError, match="returns contain inf"):
+        cec.update(keys[0], np.zeros(1), np.inf)
+    with pytest.raises(ValueError, match="returns contain nan"):
+        mfec.update_episode(keys, np.zeros(3, dtype=np.int64), returns)
+    assert len(cec) == len(mfec) == 0
+
+
+@pytest.mark.parametrize("algo", [CEC, MFEC])
+def test_replay_buffer_calls_warn_that_the_memory_is_in_the_model_file(algo, tmp_path):
+    """rl_zoo3's --save-replay-buffer calls save_replay_buffer when it exists: say where the memory is."""
+    model = _make(algo, seed=0)
+    with pytest.warns(UserWarning, match="episodic memory is saved in the model file"):
+        model.save_replay_buffer(tmp_path / "replay_buffer.pkl")
+    assert not (tmp_path / "replay_buffer.pkl").exists()
+    with pytest.warns(UserWarning, match="restored from the model file"):
+        model.load_replay_buffer(tmp_path / "replay_buffer.pkl")
+
+
+@pytest.mark.parametrize("algo", [CEC, MFEC])
+def test_tensorboard_run_is_named_after_the_algorithm(algo, tmp_path):
+    pytest.importorskip("tensorboard")
+    model = _make(algo, seed=0, tensorboard_log=str(tmp_path))
+    model.learn(20, log_interval=None)
+    model.learn(20, log_interval=None)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"{algo.__name__}_1", f"{algo.__name__}_2"]
+
+
+@pytest.mark.parametrize("algo", [CEC, MFEC])
+def test_set_random_seed_after_load_makes_predict_and_learn_reproducible(algo, tmp_path):
+    model = _make(algo, seed=0, exploration_fraction=0.5)
+    model.learn(300, log_interval=None)
+    model.save(tmp_path / "model.zip")
+    obs = np.random.default_rng(0).uniform(-1, 1, (200, 3)).astype(np.float32)
+    model.set_random_seed(3)
+    reference_actions = model.predict(obs)[0]  # the loaded copies explore as the saved model did (same epsilon)
+    runs = []
+    for env_first in (True, False, True, False):
+        loaded = algo.load(tmp_path / "model.zip")
+        env = _SpacesEnv(BOX_OBS, ACTION_SPACES[algo])
+        if env_first:
+            loaded.set_env(env)
+        loaded.set_random_seed(3)
+        if not env_first:
+            loaded.set_env(env)  # the seed given before the env seeds the env too
+        actions = loaded.predict(obs)[0]
+        np.testing.assert_array_equal(actions, reference_actions)
+        loaded.learn(100, log_interval=None)
+        runs.append(loaded.policy.memory.state_dict())
+    for run in runs[1:]:
+        assert run.keys() == runs[0].keys()
+        for name in run:
+            np.testing.assert_array_equal(run[name], runs[0][name])

@@ -9,6 +9,7 @@ import yaml
 from gymnasium import spaces
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.vec_env import VecTransposeImage
 
 import sb3_gcrl  # noqa: F401  (registers GCRL/ and MinAtar envs)
 from sb3_gcrl import MFEC
@@ -114,3 +115,76 @@ def test_zoo_config_hyperparameters_build_models():
         if env_id.startswith("MinAtar"):
             assert model.capacity_per_action == int(1e5 / (2 * n_actions))  # 2M code's capacity
         env.close()
+
+
+class ImageChainEnv(ChainEnv):
+    """ChainEnv rendered as a channel-last uint8 image (4 x 5 x 3): column ``s`` is lit."""
+
+    observation_space = spaces.Box(0, 255, (4, 5, 3), np.uint8)
+
+    def _image(self) -> np.ndarray:
+        image = np.zeros((4, 5, 3), np.uint8)
+        image[:, self.s] = 255
+        return image
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return self._image(), {}
+
+    def step(self, action):
+        _, reward, terminated, truncated, info = super().step(action)
+        return self._image(), reward, terminated, truncated, info
+
+
+def test_image_observations_train_predict_on_raw_obs_and_evaluate():
+    """Training sees VecTransposeImage's channel-first images; predict on the raw channel-last observation must
+    transpose it the same way, so the memory is queried with the keys it was trained on."""
+    model = MFEC("MFECPolicy", ImageChainEnv(), projection_dim=4, n_neighbors=1, gamma=0.9, seed=0)
+    assert isinstance(model.get_env(), VecTransposeImage)
+    assert model.policy.observation_space.shape == (3, 4, 5)
+    model.learn(600, log_interval=None)
+    env = ImageChainEnv()
+    raw, _ = env.reset()
+    action, _ = model.predict(raw, deterministic=True)
+    expected, _ = model.policy.act(model.policy.embedding(np.transpose(raw, (2, 0, 1))[None]), deterministic=True)
+    assert action.shape == () and action == expected[0] == 1  # the memory learnt "right" at the start
+    batch = np.stack([raw, env.step(1)[0]])
+    np.testing.assert_array_equal(model.predict(batch, deterministic=True)[0], [1, 1])
+    mean, _ = evaluate_policy(model, ImageChainEnv(), n_eval_episodes=2, deterministic=True)
+    assert mean == 1.0
+
+
+def test_cnn_policy_alias_is_gone_and_names_the_right_policy():
+    with pytest.raises(ValueError, match="no 'CnnPolicy'.*'MFECPolicy'"):
+        MFEC("CnnPolicy", ImageChainEnv())
+    with pytest.raises(ValueError, match=r"unknown for MFEC; use one of \['MFECPolicy'"):
+        MFEC("MlpLstmPolicy", ChainEnv())
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        (dict(capacity_per_action=1.7), ValueError, "capacity_per_action must be an integer, got 1.7"),
+        (dict(capacity_per_action=0), ValueError, "capacity_per_action must be >= 1"),
+        (dict(capacity_per_action="100"), TypeError, "capacity_per_action must be an integer"),
+        (dict(n_neighbors=2.5), ValueError, "n_neighbors"),
+        (dict(n_neighbors=0), ValueError, "n_neighbors"),
+        (dict(projection_dim=0), ValueError, "projection_dim"),
+        (dict(projection_dim=2.5), ValueError, "projection_dim"),
+        (dict(gamma=np.nan), ValueError, "gamma"),
+        (dict(exploration_initial_eps=-0.1), ValueError, "exploration_initial_eps"),
+        (dict(exploration_fraction=1.5), ValueError, "exploration_fraction"),
+        (dict(knn_backend="annoy"), ValueError, "knn_backend"),
+        (dict(rebuild_threshold=0), ValueError, "rebuild_threshold"),
+        (dict(stats_window_size=0), ValueError, "stats_window_size"),
+    ],
+)
+def test_invalid_hyperparameters_fail_at_construction(kwargs, error, match):
+    with pytest.raises(error, match=match):
+        MFEC("MFECPolicy", ChainEnv(), **kwargs)
+
+
+def test_integral_float_capacity_is_accepted():
+    model = MFEC("MFECPolicy", ChainEnv(), capacity_per_action=1e3)  # YAML's !!float 1e3
+    assert model.capacity_per_action == model.policy.memory.capacity_per_action == 1000
+    assert isinstance(model.capacity_per_action, int)

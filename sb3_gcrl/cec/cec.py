@@ -14,6 +14,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from sb3_gcrl.cec.policies import CECPolicy
 from sb3_gcrl.memory.control import EpisodicControlAlgorithm
 from sb3_gcrl.memory.knn import KNNBackend
+from sb3_gcrl.memory.validation import check_float, check_int
 
 SelfCEC = TypeVar("SelfCEC", bound="CEC")
 
@@ -96,12 +97,12 @@ class CEC(EpisodicControlAlgorithm):
         device: th.device | str = "cpu",
         _init_setup_model: bool = True,
     ) -> None:
-        self.capacity = int(capacity)
-        self.distance_threshold = distance_threshold
-        self.filter_factor = filter_factor
-        self.n_neighbors = n_neighbors
-        self.temperature = temperature
-        self.noise_std = noise_std
+        self.capacity = check_int("capacity", capacity)
+        self.distance_threshold = check_float("distance_threshold (d)", distance_threshold, 0.0, exclusive_minimum=True)
+        self.filter_factor = check_float("filter_factor (n)", filter_factor, 0.0, exclusive_minimum=True)
+        self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
+        self.temperature = check_float("temperature (tau)", temperature, 0.0, exclusive_minimum=True)
+        self.noise_std = check_float("noise_std (sigma)", noise_std, 0.0)
         super().__init__(
             policy,
             env,

@@ -11,6 +11,7 @@ from gymnasium import spaces
 from sb3_gcrl.memory.cec_memory import CECMemory
 from sb3_gcrl.memory.control import EpisodicControlPolicy
 from sb3_gcrl.memory.knn import KNNBackend
+from sb3_gcrl.memory.validation import check_float
 
 
 class CECPolicy(EpisodicControlPolicy):
@@ -59,9 +60,7 @@ class CECPolicy(EpisodicControlPolicy):
         super().__init__(
             observation_space, action_space, projection_dim, observation_keys, seed, knn_backend, rebuild_threshold
         )
-        if not noise_std >= 0:
-            raise ValueError(f"noise_std (sigma) must be >= 0, got {noise_std}")
-        self.noise_std = float(noise_std)
+        self.noise_std = check_float("noise_std (sigma)", noise_std, 0.0)
         self.memory = CECMemory(
             key_dim=self.embedding.key_dim,
             action_dim=int(np.prod(action_space.shape)),

@@ -14,6 +14,9 @@ Public API (all batched over queries; keys are ``(n, key_dim)`` float32 arrays):
   (lazily rebuilt KD-tree + brute-forced delta, or faiss brute force).
 * :class:`RecencyOrder` — O(1) least-recently-updated eviction order.
 * :class:`EpisodeBuffers`, :func:`discounted_returns` — per-env running episodes and their returns.
+
+Hyperparameters and saved states are checked by :mod:`sb3_gcrl.memory.validation` (errors name the
+parameter); the SB3 base classes of CEC and MFEC are in :mod:`sb3_gcrl.memory.control`.
 """
 
 from sb3_gcrl.memory.cec_memory import CECMemory

@@ -25,6 +25,7 @@ import numpy as np
 
 from sb3_gcrl.memory.knn import KNNBackend, KNNIndex
 from sb3_gcrl.memory.recency import RecencyOrder
+from sb3_gcrl.memory.validation import check_finite_returns, check_float, check_int, check_saved_rows
 
 #: outcome codes of :meth:`CECMemory.update`
 ADDED, REPLACED, REFRESHED, EVICTED = "added", "replaced", "refreshed", "evicted"
@@ -57,23 +58,13 @@ class CECMemory:
         knn_backend: KNNBackend = "auto",
         rebuild_threshold: int | None = None,
     ) -> None:
-        if not distance_threshold > 0:
-            raise ValueError(f"distance_threshold (d) must be > 0, got {distance_threshold}")
-        if not filter_factor > 0:
-            raise ValueError(f"filter_factor (n) must be > 0, got {filter_factor}")
-        if n_neighbors < 1:
-            raise ValueError(f"n_neighbors (k) must be >= 1, got {n_neighbors}")
-        if not temperature > 0:
-            raise ValueError(f"temperature (tau) must be > 0, got {temperature}")
-        if action_dim < 1:
-            raise ValueError(f"action_dim must be >= 1, got {action_dim}")
-        self.key_dim = int(key_dim)
-        self.action_dim = int(action_dim)
-        self.capacity = int(capacity)
-        self.distance_threshold = float(distance_threshold)
-        self.filter_factor = float(filter_factor)
-        self.n_neighbors = int(n_neighbors)
-        self.temperature = float(temperature)
+        self.key_dim = check_int("key_dim", key_dim)
+        self.action_dim = check_int("action_dim", action_dim)
+        self.capacity = check_int("capacity", capacity)
+        self.distance_threshold = check_float("distance_threshold (d)", distance_threshold, 0.0, exclusive_minimum=True)
+        self.filter_factor = check_float("filter_factor (n)", filter_factor, 0.0, exclusive_minimum=True)
+        self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
+        self.temperature = check_float("temperature (tau)", temperature, 0.0, exclusive_minimum=True)
         self.index = KNNIndex(key_dim, self.capacity, backend=knn_backend, rebuild_threshold=rebuild_threshold)
         self.actions = np.zeros((self.capacity, self.action_dim), dtype=np.float32)
         self.values = np.zeros(self.capacity, dtype=np.float64)
@@ -90,7 +81,12 @@ class CECMemory:
     # ------------------------------------------------------------------ update
     def update(self, key: np.ndarray, action: np.ndarray, value: float) -> str:
         """Apply Eq. 4.3/4.4 to one ``(s, a, v)``; return ``"added"``, ``"evicted"`` (added in place of
-        the least recently updated row), ``"replaced"`` or ``"refreshed"``."""
+        the least recently updated row), ``"replaced"`` or ``"refreshed"``.
+
+        :raises ValueError: if ``value`` is NaN or infinite.
+        """
+        if not np.isfinite(value):
+            check_finite_returns(np.array([value], dtype=np.float64))
         if self.index.size:
             dist, rows = self.index.search(key[None], 1)
             nearest, row = dist[0, 0], int(rows[0, 0])
@@ -127,12 +123,14 @@ class CECMemory:
         :param actions: ``(T, action_dim)`` actions taken.
         :param returns: ``(T,)`` discounted returns (see :func:`~sb3_gcrl.memory.episode.discounted_returns`).
         :return: how many steps were added / evicted / replaced / refreshed.
+        :raises ValueError: if a return is NaN or infinite (nothing is written then).
         """
         keys = np.ascontiguousarray(keys, dtype=np.float32).reshape(len(keys), self.key_dim)
         actions = np.asarray(actions, dtype=np.float32).reshape(len(keys), self.action_dim)
         returns = np.asarray(returns, dtype=np.float64)
         if not (len(keys) == len(actions) == len(returns)):
             raise ValueError(f"keys, actions, returns lengths differ: {len(keys)}, {len(actions)}, {len(returns)}")
+        check_finite_returns(returns)
         counts = {ADDED: 0, EVICTED: 0, REPLACED: 0, REFRESHED: 0}
         n_steps = len(keys)
         if n_steps == 0:
@@ -264,13 +262,18 @@ class CECMemory:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore exactly what :meth:`state_dict` returned."""
-        keys = np.asarray(state["keys"], dtype=np.float32)
+        """Restore exactly what :meth:`state_dict` returned.
+
+        :raises ValueError: if ``state`` is incomplete, mis-shaped, non-finite or larger than the capacity
+            (the memory is left unchanged then).
+        """
+        keys = check_saved_rows(state, "CECMemory", self.key_dim, self.capacity, ("actions", "values"))
         n = len(keys)
-        if keys.ndim != 2 or keys.shape[1] != self.key_dim:
-            raise ValueError(f"Saved keys have shape {keys.shape}, this memory expects (n, {self.key_dim})")
-        if n > self.capacity:
-            raise ValueError(f"Saved memory has {n} rows, more than capacity={self.capacity}; raise the capacity")
+        if np.asarray(state["actions"]).size != n * self.action_dim:
+            raise ValueError(
+                f"Saved CECMemory is corrupted: 'actions' has shape {np.shape(state['actions'])}, "
+                f"expected ({n}, {self.action_dim})"
+            )
         self.index.load_keys(keys)
         self.actions[:n] = np.asarray(state["actions"], dtype=np.float32).reshape(n, self.action_dim)
         self.values[:n] = np.asarray(state["values"], dtype=np.float64)

@@ -11,8 +11,11 @@ the memory from each finished episode's discounted returns (thesis Algorithm 1).
 
 from __future__ import annotations
 
+import io
+import pathlib
 import sys
 import time
+import warnings
 from abc import abstractmethod
 from collections.abc import Sequence
 from typing import Any, TypeVar
@@ -25,17 +28,27 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
-from stable_baselines3.common.utils import LinearSchedule, is_vectorized_observation, safe_mean
+from stable_baselines3.common.utils import LinearSchedule, safe_mean
 
 from sb3_gcrl.memory.embedding import KeyEmbedding
 from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
 from sb3_gcrl.memory.knn import KNNBackend
+from sb3_gcrl.memory.validation import check_float, check_int, check_optional_int
 
 SelfEpisodicControlAlgorithm = TypeVar("SelfEpisodicControlAlgorithm", bound="EpisodicControlAlgorithm")
 
 
 def _to_tensor(value: Any) -> th.Tensor:
     return th.as_tensor(np.asarray(value))
+
+
+class MemoryRestoreError(RuntimeError):
+    """A saved episodic memory cannot be restored (corrupted file, or memory settings that do not fit it).
+
+    A ``RuntimeError`` on purpose: SB3's ``BaseAlgorithm.load`` re-raises a ``RuntimeError`` from
+    ``set_parameters`` unchanged, whereas it treats a ``ValueError`` as an old DQN optimizer state and then
+    fails with an unrelated ``KeyError: 'policy.optimizer'``. The memory's own error is the ``__cause__``.
+    """
 
 
 class EpisodicControlPolicy(BasePolicy):
@@ -69,7 +82,7 @@ class EpisodicControlPolicy(BasePolicy):
         self.observation_keys = None if observation_keys is None else tuple(observation_keys)
         self.seed = seed
         self.knn_backend = knn_backend
-        self.rebuild_threshold = rebuild_threshold
+        self.rebuild_threshold = check_optional_int("rebuild_threshold", rebuild_threshold)
         self.embedding = KeyEmbedding(observation_space, projection_dim, seed, self.observation_keys)
         self.rng = np.random.default_rng(seed)
         #: probability of exploring (epsilon), set by the algorithm's schedule during training
@@ -91,20 +104,34 @@ class EpisodicControlPolicy(BasePolicy):
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3 ``predict`` on numpy: embed, query the memory, return actions (batched or single)."""
+        """SB3's ``predict``, without a tensor round trip through the memory.
+
+        The observation is prepared by SB3's :meth:`obs_to_tensor`, as for any SB3 policy: channel-last
+        images are transposed channel-first (as ``VecTransposeImage`` did during training, so the memory
+        sees the keys it was trained on) and a single observation gets a batch dimension. The actions
+        have SB3's shapes: ``(n, *action_space.shape)`` for a batch, ``action_space.shape`` for one
+        observation (an array of shape ``()`` for ``Discrete``, as SB3's DQN returns).
+
+        :param observation: one observation or a batch (Dict observations: a dict of those).
+        :param state: passed through (no recurrent state).
+        :param episode_start: unused (no recurrent state).
+        :param deterministic: greedy action if True, else the training-time (exploring) action.
+        :return: the actions and ``state``.
+        """
         if isinstance(observation, tuple) and len(observation) == 2 and isinstance(observation[1], dict):
             raise ValueError(
                 "predict() got a tuple (obs, info): pass only the observation returned by env.reset()/step()"
             )
-        vectorized = is_vectorized_observation(observation, self.observation_space)
-        if isinstance(observation, dict):
-            batch: np.ndarray | dict[str, np.ndarray] = {
-                k: (np.asarray(v) if vectorized else np.asarray(v)[None]) for k, v in observation.items()
-            }
+        obs_tensor, vectorized = self.obs_to_tensor(observation)
+        if isinstance(obs_tensor, dict):
+            batch: np.ndarray | dict[str, np.ndarray] = {k: v.cpu().numpy() for k, v in obs_tensor.items()}
         else:
-            batch = np.asarray(observation) if vectorized else np.asarray(observation)[None]
+            batch = obs_tensor.cpu().numpy()
         actions, _ = self.act(self.embedding(batch), deterministic=deterministic)
-        return (actions if vectorized else actions[0]), state
+        actions = np.asarray(actions).reshape((-1, *self.action_space.shape))  # type: ignore[misc]
+        if not vectorized:
+            actions = actions.squeeze(axis=0)
+        return actions, state
 
     def _predict(self, observation: th.Tensor | dict[str, th.Tensor], deterministic: bool = False) -> th.Tensor:
         if isinstance(observation, dict):
@@ -124,18 +151,28 @@ class EpisodicControlPolicy(BasePolicy):
         return state
 
     def set_extra_state(self, state: dict[str, th.Tensor]) -> None:
-        """Restore what :meth:`get_extra_state` returned."""
-        memory_state = {k[len("memory/") :]: v.cpu().numpy() for k, v in state.items() if k.startswith("memory/")}
-        for name in memory_state:
-            if name == "clock" or name.endswith("/clock"):
-                memory_state[name] = int(memory_state[name])
-        self.embedding.set_state(
-            {k[len("embedding/") :]: v.cpu().numpy() for k, v in state.items() if k.startswith("embedding/")}
-        )
-        self.memory.load_state_dict(memory_state)
+        """Restore what :meth:`get_extra_state` returned.
+
+        :raises MemoryRestoreError: if the saved memory or projection cannot be restored; the memory's own
+            error (what is missing, mis-shaped or corrupted) is in the message and is the ``__cause__``.
+        """
+        try:
+            memory_state = {k[len("memory/") :]: v.cpu().numpy() for k, v in state.items() if k.startswith("memory/")}
+            for name in memory_state:
+                if name == "clock" or name.endswith("/clock"):
+                    memory_state[name] = int(memory_state[name])
+            self.embedding.set_state(
+                {k[len("embedding/") :]: v.cpu().numpy() for k, v in state.items() if k.startswith("embedding/")}
+            )
+            self.memory.load_state_dict(memory_state)
+        except (ValueError, TypeError, KeyError, AttributeError) as error:
+            raise MemoryRestoreError(
+                f"The saved episodic memory cannot be restored into this {type(self).__name__}: {error}"
+            ) from error
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
+        del data["normalize_images"]  # no network, nothing to normalize: keys are built from the raw observation
         data.update(
             projection_dim=self.projection_dim,
             observation_keys=self.observation_keys,
@@ -169,6 +206,8 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
     :param seed: seed of everything (projection matrix, action sampling, envs).
     :param device: kept for the SB3 API; everything runs on CPU with numpy.
     :param _init_setup_model: build the policy at construction.
+    :raises ValueError: naming the parameter, for a hyperparameter out of range, or a policy class of
+        another algorithm (e.g. loading an MFEC file with ``CEC.load``).
     """
 
     policy: EpisodicControlPolicy
@@ -193,9 +232,22 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
         device: th.device | str = "cpu",
         _init_setup_model: bool = True,
     ) -> None:
+        # first the policy (a file saved by another algorithm is loaded through here), then the spaces,
+        # before SB3's own (assertion) checks, so that the errors name the fix
+        self._check_policy_class(self._get_policy_from_name(policy) if isinstance(policy, str) else policy)
         if hasattr(env, "action_space") and hasattr(env, "observation_space"):
-            # before SB3's own (assertion) checks, so that the error names the fix
             self._check_spaces(env.observation_space, env.action_space)
+        gamma = check_float("gamma", gamma, 0.0, 1.0)
+        exploration_initial_eps = check_float("exploration_initial_eps", exploration_initial_eps, 0.0, 1.0)
+        exploration_final_eps = check_float("exploration_final_eps", exploration_final_eps, 0.0, 1.0)
+        exploration_fraction = check_float("exploration_fraction", exploration_fraction, 0.0, 1.0)
+        projection_dim = check_optional_int("projection_dim", projection_dim)
+        rebuild_threshold = check_optional_int("rebuild_threshold", rebuild_threshold)
+        stats_window_size = check_int("stats_window_size", stats_window_size)
+        if knn_backend not in ("auto", "kdtree", "flat"):
+            raise ValueError(f"Unknown knn_backend {knn_backend!r}; use 'auto', 'kdtree' or 'flat'")
+        #: seed given to :meth:`set_random_seed` while no env was attached, applied by :meth:`set_env`
+        self._pending_env_seed: int | None = None
         super().__init__(
             policy,
             env,
@@ -208,19 +260,12 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
             support_multi_env=True,
             seed=seed,
         )
-        if not 0.0 <= gamma <= 1.0:
-            raise ValueError(f"gamma must lie in [0, 1], got {gamma}")
-        for name, value in (
-            ("exploration_initial_eps", exploration_initial_eps),
-            ("exploration_final_eps", exploration_final_eps),
-            ("exploration_fraction", exploration_fraction),
-        ):
-            if not 0.0 <= value <= 1.0:
-                raise ValueError(f"{name} must lie in [0, 1], got {value}")
         self.gamma = gamma
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
         self.exploration_fraction = exploration_fraction
+        #: current epsilon (saved with the model, so a loaded model explores as the saved one did)
+        self.exploration_rate = exploration_initial_eps
         self.projection_dim = projection_dim
         self.observation_keys = None if observation_keys is None else list(observation_keys)
         self.knn_backend = knn_backend
@@ -244,6 +289,43 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
         """Update the memory with one finished episode; return counters to log under ``memory/``."""
 
     # ------------------------------------------------------------------ SB3 API
+    def _get_policy_from_name(self, policy_name: str) -> type[BasePolicy]:
+        """Policy class of an alias; the error for an unknown alias lists the valid ones.
+
+        ``"CnnPolicy"`` is not an alias on purpose: there is no network, so nothing to make
+        convolutional. Image observations work with the default policy (transposed channel-first as in
+        SB3, keyed by a Gaussian random projection of the pixels, ``projection_dim``).
+        """
+        if policy_name in self.policy_aliases:
+            return self.policy_aliases[policy_name]
+        name, default = type(self).__name__, next(iter(self.policy_aliases))
+        if policy_name == "CnnPolicy":
+            raise ValueError(
+                f"{name} has no 'CnnPolicy': it has no network, so nothing is convolutional. Use {default!r}, which "
+                "handles image observations too (channel-last images are transposed as in SB3; set projection_dim "
+                "to key them by a random projection of the pixels)"
+            )
+        raise ValueError(f"Policy {policy_name!r} unknown for {name}; use one of {sorted(self.policy_aliases)}")
+
+    def _check_policy_class(self, policy_class: type[BasePolicy]) -> None:
+        """Raise a ``ValueError`` naming the right algorithm when ``policy_class`` belongs to another one."""
+        accepted = tuple(dict.fromkeys(self.policy_aliases.values()))
+        if isinstance(policy_class, type) and issubclass(policy_class, accepted):
+            return
+        name = type(self).__name__
+        owner = _episodic_algorithm_of(policy_class)
+        if owner is not None:
+            raise ValueError(
+                f"{name} got {policy_class.__name__}, the policy class of {owner}: this is a model of {owner}, "
+                f"not of {name}. Load a file saved by {owner} with {owner}.load(path); build a {name} with one of "
+                f"{sorted(self.policy_aliases)}"
+            )
+        raise ValueError(
+            f"{name} cannot use the policy {getattr(policy_class, '__name__', policy_class)!r}: it must be a subclass "
+            f"of {', '.join(c.__name__ for c in accepted)}. A file saved by another algorithm must be loaded with "
+            "that algorithm's load()"
+        )
+
     def _setup_model(self) -> None:
         if is_image_space(self.observation_space) and self.projection_dim is None:
             raise ValueError("Image observations need a key embedding: set projection_dim (e.g. 8, as in the thesis)")
@@ -262,19 +344,69 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
         kwargs.update(self.policy_kwargs)
         self.policy = self.policy_class(self.observation_space, self.action_space, **kwargs)
         self.policy.set_seed(self.seed)
-        self.exploration_rate = self.exploration_initial_eps
         self.policy.exploration_rate = self.exploration_rate
         self._episode_buffers: EpisodeBuffers | None = None
         self._reset_memory_stats()
 
     def set_random_seed(self, seed: int | None = None) -> None:
-        """Seed python/numpy/torch, the action space, the envs and the policy's sampling generator."""
+        """Seed python/numpy/torch, the action space, the envs and the policy's sampling generator.
+
+        With no env attached (e.g. after ``load(path)`` without ``env``), the envs are seeded by the next
+        :meth:`set_env`, so ``load -> set_random_seed -> set_env -> learn`` is reproducible too.
+
+        :param seed: the seed; ``None`` changes nothing.
+        """
         super().set_random_seed(seed)
-        if seed is not None and getattr(self, "policy", None) is not None:
+        if seed is None:
+            return
+        if getattr(self, "policy", None) is not None:
             self.policy.set_seed(seed)
+        self._pending_env_seed = seed if self.env is None else None
+
+    def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
+        """SB3's ``set_env``; also seeds the new envs with a seed given to :meth:`set_random_seed` while no
+        env was attached.
+
+        :param env: the new env (same spaces).
+        :param force_reset: reset the env at the next ``learn`` (SB3's default).
+        """
+        super().set_env(env, force_reset)
+        if self._pending_env_seed is not None:
+            assert self.env is not None
+            self.env.seed(self._pending_env_seed)
+            self._pending_env_seed = None
+
+    def save_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase) -> None:
+        """Episodic control has no replay buffer: the memory is saved in the model file by :meth:`save`.
+
+        Warns and writes nothing (RL-Zoo's ``--save-replay-buffer`` calls this).
+
+        :param path: where a replay buffer would go.
+        """
+        warnings.warn(
+            f"{type(self).__name__} has no replay buffer: its episodic memory is saved in the model file by save() "
+            f"and restored by load(); nothing was written to {path}",
+            UserWarning,
+            stacklevel=2,
+        )
+
+    def load_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase, truncate_last_traj: bool = True) -> None:
+        """Episodic control has no replay buffer: the memory is restored from the model file by :meth:`load`.
+
+        Warns and reads nothing.
+
+        :param path: where a replay buffer would be.
+        :param truncate_last_traj: unused (SB3 signature).
+        """
+        warnings.warn(
+            f"{type(self).__name__} has no replay buffer: its episodic memory is restored from the model file by "
+            f"load(); nothing was read from {path}",
+            UserWarning,
+            stacklevel=2,
+        )
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_episode_buffers", "exploration_schedule"]
+        return [*super()._excluded_save_params(), "_episode_buffers", "exploration_schedule", "_pending_env_seed"]
 
     def _reset_memory_stats(self) -> None:
         self._n_queries = 0
@@ -338,6 +470,13 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
             keys = embed(self._last_obs)
             actions, hits = self.policy.act(keys, deterministic=False)
             new_obs, rewards, dones, infos = self.env.step(actions)
+            if not np.isfinite(rewards).all():
+                env_idx = int(np.flatnonzero(~np.isfinite(rewards))[0])
+                raise ValueError(
+                    f"Env {env_idx} returned the reward {rewards[env_idx]} at timestep {self.num_timesteps}: episodic "
+                    "memory values must be finite (a NaN would spread to every value compared with it); fix the env's "
+                    "reward, or wrap it with stable_baselines3.common.vec_env.VecCheckNan to find the source"
+                )
             self.num_timesteps += n_envs
             self._n_queries += n_envs
             self._n_hits += int(hits.sum())
@@ -383,3 +522,16 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
         self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
         self.logger.dump(step=self.num_timesteps)
         self._reset_memory_stats()
+
+
+def _episodic_algorithm_of(policy_class: Any) -> str | None:
+    """Name of the :class:`EpisodicControlAlgorithm` whose policies ``policy_class`` belongs to, if any."""
+    if not isinstance(policy_class, type):
+        return None
+    pending: list[type[EpisodicControlAlgorithm]] = [EpisodicControlAlgorithm]
+    while pending:
+        algorithm = pending.pop(0)  # breadth first: the library's class before a user's subclass of it
+        pending.extend(algorithm.__subclasses__())
+        if algorithm.policy_aliases and issubclass(policy_class, tuple(algorithm.policy_aliases.values())):
+            return algorithm.__name__
+    return None

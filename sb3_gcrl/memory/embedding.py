@@ -13,6 +13,8 @@ from collections.abc import Sequence
 import numpy as np
 from gymnasium import spaces
 
+from sb3_gcrl.memory.validation import check_optional_int
+
 #: default Dict-observation keys (and their order) for goal-conditioned envs: the state and the goal
 GOAL_ENV_KEYS: tuple[str, ...] = ("observation", "desired_goal")
 
@@ -74,8 +76,7 @@ class KeyEmbedding:
             self.observation_keys = None
             self._dims = [_space_dim(observation_space, "")]
         self.input_dim = int(sum(self._dims))
-        if projection_dim is not None and projection_dim < 1:
-            raise ValueError(f"projection_dim must be a positive int or None, got {projection_dim}")
+        projection_dim = check_optional_int("projection_dim", projection_dim)
         self.projection_dim = projection_dim
         self.seed = seed
         self.projection: np.ndarray | None = None

@@ -18,6 +18,7 @@ import numpy as np
 
 from sb3_gcrl.memory.knn import KNNBackend, KNNIndex
 from sb3_gcrl.memory.recency import RecencyOrder
+from sb3_gcrl.memory.validation import check_finite_returns, check_int, check_saved_rows
 
 
 def argmax_random_ties(q: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
@@ -47,11 +48,9 @@ class MFECTable:
         knn_backend: KNNBackend = "auto",
         rebuild_threshold: int | None = None,
     ) -> None:
-        if n_neighbors < 1:
-            raise ValueError(f"n_neighbors (k) must be >= 1, got {n_neighbors}")
-        self.key_dim = int(key_dim)
-        self.capacity = int(capacity)
-        self.n_neighbors = int(n_neighbors)
+        self.key_dim = check_int("key_dim", key_dim)
+        self.capacity = check_int("capacity", capacity)
+        self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
         self.index = KNNIndex(key_dim, self.capacity, backend=knn_backend, rebuild_threshold=rebuild_threshold)
         self.values = np.zeros(self.capacity, dtype=np.float64)
         self.recency = RecencyOrder(self.capacity)
@@ -118,13 +117,13 @@ class MFECTable:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore exactly what :meth:`state_dict` returned."""
-        keys = np.ascontiguousarray(state["keys"], dtype=np.float32)
+        """Restore exactly what :meth:`state_dict` returned.
+
+        :raises ValueError: if ``state`` is incomplete, mis-shaped, non-finite or larger than the capacity
+            (the table is left unchanged then).
+        """
+        keys = check_saved_rows(state, "MFECTable", self.key_dim, self.capacity, ("values",))
         n = len(keys)
-        if keys.ndim != 2 or keys.shape[1] != self.key_dim:
-            raise ValueError(f"Saved keys have shape {keys.shape}, this table expects (n, {self.key_dim})")
-        if n > self.capacity:
-            raise ValueError(f"Saved table has {n} rows, more than capacity={self.capacity}; raise the capacity")
         self.index.load_keys(keys)
         self.values[:n] = np.asarray(state["values"], dtype=np.float64)
         self.recency.rebuild_from_timestamps(np.asarray(state["last_update"], dtype=np.int64), int(state["clock"]))
@@ -157,16 +156,12 @@ class MFECMemory:
         knn_backend: KNNBackend = "auto",
         rebuild_threshold: int | None = None,
     ) -> None:
-        if n_actions < 1:
-            raise ValueError(f"n_actions must be >= 1, got {n_actions}")
-        if capacity_per_action < 1:
-            raise ValueError(f"capacity_per_action must be >= 1, got {capacity_per_action}")
-        self.key_dim = int(key_dim)
-        self.n_actions = int(n_actions)
-        self.capacity_per_action = int(capacity_per_action)
-        self.n_neighbors = int(n_neighbors)
+        self.key_dim = check_int("key_dim", key_dim)
+        self.n_actions = check_int("n_actions", n_actions)
+        self.capacity_per_action = check_int("capacity_per_action", capacity_per_action)
+        self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
         self.tables = [
-            MFECTable(key_dim, capacity_per_action, n_neighbors, knn_backend, rebuild_threshold)
+            MFECTable(self.key_dim, self.capacity_per_action, self.n_neighbors, knn_backend, rebuild_threshold)
             for _ in range(n_actions)
         ]
 
@@ -188,6 +183,7 @@ class MFECMemory:
 
         :param keys: ``(T, key_dim)``; :param actions: ``(T,)`` ints; :param returns: ``(T,)``.
         :return: number of new rows written.
+        :raises ValueError: if a return is NaN or infinite (nothing is written then).
         """
         keys = np.ascontiguousarray(keys, dtype=np.float32).reshape(len(keys), self.key_dim)
         actions = np.asarray(actions).reshape(-1).astype(np.int64)
@@ -196,6 +192,7 @@ class MFECMemory:
             raise ValueError(f"keys, actions, returns lengths differ: {len(keys)}, {len(actions)}, {len(returns)}")
         if len(actions) and (actions.min() < 0 or actions.max() >= self.n_actions):
             raise ValueError(f"actions must lie in [0, {self.n_actions}), got {actions.min()}..{actions.max()}")
+        check_finite_returns(returns)
         added = 0
         for t in range(len(keys) - 1, -1, -1):
             added += self.tables[actions[t]].update(keys[t], float(returns[t]))
@@ -209,10 +206,23 @@ class MFECMemory:
         return out
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore exactly what :meth:`state_dict` returned."""
-        for a, table in enumerate(self.tables):
-            prefix = f"a{a}/"
-            table.load_state_dict({k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)})
+        """Restore exactly what :meth:`state_dict` returned.
+
+        :raises ValueError: if ``state`` holds tables of other actions than ``0 .. n_actions - 1`` or a table
+            cannot be restored (see :meth:`MFECTable.load_state_dict`).
+        """
+        prefixes = [f"a{a}/" for a in range(self.n_actions)]
+        unknown = sorted({k.split("/", 1)[0] for k in state if not k.startswith(tuple(prefixes))})
+        if unknown:
+            raise ValueError(
+                f"Saved MFECMemory has tables {unknown} that this memory with n_actions={self.n_actions} lacks; "
+                "it was saved for another action space"
+            )
+        for a, (table, prefix) in enumerate(zip(self.tables, prefixes)):
+            try:
+                table.load_state_dict({k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)})
+            except ValueError as error:
+                raise ValueError(f"action {a}: {error}") from error
 
     def clear(self) -> None:
         """Remove every row."""

@@ -13,6 +13,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 
 from sb3_gcrl.memory.control import EpisodicControlAlgorithm
 from sb3_gcrl.memory.knn import KNNBackend
+from sb3_gcrl.memory.validation import check_int
 from sb3_gcrl.mfec.policies import MFECPolicy
 
 SelfMFEC = TypeVar("SelfMFEC", bound="MFEC")
@@ -28,7 +29,9 @@ class MFEC(EpisodicControlAlgorithm):
     first); epsilon-greedy on top. Keys are the observation randomly projected to
     ``projection_dim`` dims (8 in the 2M code). This is the EC half of 2M (thesis Ch. 5).
 
-    :param policy: ``"MFECPolicy"`` (aliases ``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"``).
+    :param policy: ``"MFECPolicy"`` (aliases ``"MlpPolicy"``, ``"MultiInputPolicy"``). There is no
+        ``"CnnPolicy"`` (no network): image observations work with ``"MFECPolicy"``, transposed
+        channel-first as in SB3 and keyed by the random projection.
     :param env: env with a ``Discrete`` action space (any number of envs), or its registered id.
     :param capacity_per_action: rows per action table (2M code: ``1e5 / (2 * n_actions)``; MFEC paper: 1e6).
     :param n_neighbors: ``k`` of the kNN estimate (2M code: 3).
@@ -53,7 +56,6 @@ class MFEC(EpisodicControlAlgorithm):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
         "MFECPolicy": MFECPolicy,
         "MlpPolicy": MFECPolicy,
-        "CnnPolicy": MFECPolicy,
         "MultiInputPolicy": MFECPolicy,
     }
     policy: MFECPolicy
@@ -80,8 +82,8 @@ class MFEC(EpisodicControlAlgorithm):
         device: th.device | str = "cpu",
         _init_setup_model: bool = True,
     ) -> None:
-        self.capacity_per_action = int(capacity_per_action)
-        self.n_neighbors = n_neighbors
+        self.capacity_per_action = check_int("capacity_per_action", capacity_per_action)
+        self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
         super().__init__(
             policy,
             env,

@@ -86,5 +86,4 @@ class MFECPolicy(EpisodicControlPolicy):
 
 
 MlpPolicy = MFECPolicy
-CnnPolicy = MFECPolicy
 MultiInputPolicy = MFECPolicy
