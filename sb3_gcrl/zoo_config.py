@@ -35,14 +35,19 @@ def zoo_config_section(config: Path, env_id: str) -> dict[str, Any] | None:
     return None if section is None else dict(section)
 
 
-#: wrapper class name -> the callback that switches it out of its episodic mode for the training env only (the eval
-#: env, which RL-Zoo wraps with the same ``env_wrapper``, must stay episodic)
-MODE_SWITCHING_CALLBACKS = {
-    "ResetFreeWrapper": "sb3_gcrl.callbacks.ResetFreeCallback",
-    "GoalCommandWrapper": "sb3_gcrl.callbacks.ResetFreeCallback",
-    "GoExploreWrapper": "sb3_gcrl.callbacks.ResetFreeCallback",
-    "PostExplorationWrapper": "sb3_gcrl.post_exploration.PostExplorationCallback",
-}
+def mode_switching_callbacks() -> dict[str, str]:
+    """Wrapper class name -> the callback that switches it to training mode for the training env only.
+
+    Read from the wrappers' own ``switching_callback`` (the eval env, which RL-Zoo wraps with the same
+    ``env_wrapper``, must stay episodic).
+
+    :return: the mapping.
+    """
+    from sb3_gcrl.post_exploration.wrapper import PostExplorationWrapper
+    from sb3_gcrl.wrappers import GoalCommandWrapper, GoExploreWrapper, ResetFreeWrapper
+
+    wrappers = (ResetFreeWrapper, GoalCommandWrapper, GoExploreWrapper, PostExplorationWrapper)
+    return {wrapper.__name__: wrapper.switching_callback for wrapper in wrappers}
 
 
 def _class_paths(value: Any) -> list[str]:
@@ -68,8 +73,9 @@ def check_mode_switching_callbacks(section: Mapping[str, Any], where: str = "the
     :raises ValueError: naming the callback to add.
     """
     callbacks = {path.rsplit(".", 1)[-1] for path in _class_paths(section.get("callback"))}
+    switching = mode_switching_callbacks()
     for wrapper in _class_paths(section.get("env_wrapper")):
-        callback = MODE_SWITCHING_CALLBACKS.get(wrapper.rsplit(".", 1)[-1])
+        callback = switching.get(wrapper.rsplit(".", 1)[-1])
         if callback is not None and callback.rsplit(".", 1)[-1] not in callbacks:
             raise ValueError(
                 f"{where} wraps the env in {wrapper} but has no {callback.rsplit('.', 1)[-1]}, so training would "

@@ -53,9 +53,9 @@ def make_wrapped(
     env = gym.make(env_id)
     env = ResetFreeWrapper(Monitor(env) if monitor else env, hard_reset_every=200_000, eval_horizon=eval_horizon)
     kwargs = {"alpha": 0.2, "goal_low": goal_low, "goal_high": goal_high, "n_bins": 12, "within_bin": "visited"}
-    env = GoExploreWrapper(env, "back_and_forth", kwargs, eval_horizon=eval_horizon)
+    env = GoExploreWrapper(env, "back_and_forth", kwargs)  # eval_horizon read from the ResetFreeWrapper
     env.reset(seed=0)
-    env.enable_reset_free()
+    env.set_training_mode(True)
     return env
 
 
@@ -124,7 +124,7 @@ def main(argv: list[str] | None = None) -> None:
     vec_raw = DummyVecEnv([lambda: Monitor(gym.make(args.env))])
     vec_raw.seed(0)
     vec_wrapped = DummyVecEnv([make_vec_wrapped])
-    vec_wrapped.env_method("enable_reset_free")  # what ResetFreeCallback does for the training env
+    vec_wrapped.env_method("set_training_mode", True)  # what ResetFreeCallback does for the training env
     vec_raw_rates, vec_wrapped_rates = [], []
     for _ in range(args.repeats):
         vec_raw_rates.append(vec_steps_per_second(vec_raw, actions))

@@ -37,8 +37,7 @@ def make_model(n_envs: int = 2, seed: int = 0) -> SAC:
     return SAC(
         "MultiInputPolicy",
         env,
-        replay_buffer_class=TaskRelevantHerReplayBuffer,
-        replay_buffer_kwargs={"task_goal_ratio": 0.2},
+        replay_buffer_class=TaskRelevantHerReplayBuffer,  # alpha read from the scheduler
         learning_starts=100,
         batch_size=32,
         policy_kwargs={"net_arch": [16, 16]},
@@ -53,9 +52,9 @@ def test_training_env_is_reset_free_and_evaluation_stays_episodic(tmp_path) -> N
     eval_callback = EvalCallback(eval_env, n_eval_episodes=n_eval_episodes, eval_freq=100, log_path=str(tmp_path))
     model.learn(400, callback=[ResetFreeCallback(log_freq=50), eval_callback])
 
-    assert model.get_env().get_attr("mode") == ["reset_free", "reset_free"]
+    assert model.get_env().get_attr("training") == [True, True]
     assert model.get_env().get_attr("interventions") == [1, 1]  # only the initial reset in 200 steps per env
-    assert eval_env.get_attr("mode") == ["episodic"]
+    assert eval_env.get_attr("training") == [False]
     evaluations = np.load(tmp_path / "evaluations.npz")
     assert np.all(evaluations["ep_lengths"] == EVAL_HORIZON)  # T_eval, no Go/Explore segments
     n_evaluations = len(evaluations["timesteps"])
@@ -88,7 +87,7 @@ def test_save_load_round_trip_of_a_reset_free_model(tmp_path) -> None:
     loaded = SAC.load(tmp_path / "model", env=env)
     loaded.load_replay_buffer(tmp_path / "buffer")
     assert isinstance(loaded.replay_buffer, TaskRelevantHerReplayBuffer)
-    assert loaded.replay_buffer.task_goal_ratio == 0.2
+    assert loaded.replay_buffer.task_goal_ratio == 0.5
     obs = env.reset()
     np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
     loaded.learn(100, callback=ResetFreeCallback(log_freq=50), reset_num_timesteps=False)  # keeps training

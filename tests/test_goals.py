@@ -69,7 +69,7 @@ def test_entropy_eq_6_7() -> None:
 
 
 def test_goal_space_errors_name_the_fix() -> None:
-    with pytest.raises(ValueError, match="pass goal_low/goal_high"):
+    with pytest.raises(ValueError, match="pass finite goal_low/goal_high, or leave both out"):
         BinnedGoalSpace([-np.inf], [np.inf])
     with pytest.raises(ValueError, match="high must exceed low"):
         BinnedGoalSpace([1.0], [0.0])

@@ -1,4 +1,4 @@
-"""Executed-action storage and task-relevant HER relabeling (issue 3, items 4-5)."""
+"""Executed-action storage and task-relevant HER relabeling (thesis Sec. 3.4.2)."""
 
 from __future__ import annotations
 
@@ -38,14 +38,23 @@ def go_explore_line(env: gym.Env) -> gym.Env:
 
 
 def enable(model: SAC) -> None:
-    model.get_env().env_method("enable_reset_free")
+    model.get_env().env_method("set_training_mode", True)
 
 
 @pytest.mark.parametrize("buffer_class", [ExecutedActionHerReplayBuffer, TaskRelevantHerReplayBuffer])
 def test_executed_action_is_stored(buffer_class: type) -> None:
     env = make_vec_env(LineGoalEnv, n_envs=2, seed=0, wrapper_class=go_explore_line)
-    model = SAC("MultiInputPolicy", env, replay_buffer_class=buffer_class, learning_starts=10_000, policy_kwargs=TINY)
-    model.learn(64, callback=None)  # first 8 steps per env are episodic; enable, then continue
+    kwargs = {"task_goal_ratio": 0.2} if buffer_class is TaskRelevantHerReplayBuffer else None  # no alpha to read
+    model = SAC(
+        "MultiInputPolicy",
+        env,
+        replay_buffer_class=buffer_class,
+        replay_buffer_kwargs=kwargs,
+        learning_starts=10_000,
+        policy_kwargs=TINY,
+    )
+    env.env_method("set_training_mode", False)  # first 8 steps per env are episodic on purpose; enable, then continue
+    model.learn(64, callback=None)
     enable(model)
     model.learn(96, reset_num_timesteps=False)
     buffer = model.replay_buffer
@@ -134,6 +143,14 @@ def test_relabeled_rewards_use_the_task_goals() -> None:
 def test_task_relevant_buffer_errors() -> None:
     env = make_vec_env(LineGoalEnv, n_envs=1, seed=0)
     with pytest.raises(TypeError, match="wrap it in sb3_gcrl.wrappers.GoalCommandWrapper"):
+        SAC(
+            "MultiInputPolicy",
+            env,
+            replay_buffer_class=TaskRelevantHerReplayBuffer,
+            replay_buffer_kwargs={"task_goal_ratio": 0.2},
+            policy_kwargs=TINY,
+        )
+    with pytest.raises(ValueError, match="pass task_goal_ratio"):  # no alpha given and none to read
         SAC("MultiInputPolicy", env, replay_buffer_class=TaskRelevantHerReplayBuffer, policy_kwargs=TINY)
     with pytest.raises(ValueError, match=r"task_goal_ratio \(alpha\) must be in \[0, 1\]"):
         SAC(
@@ -151,3 +168,27 @@ def test_task_relevant_buffer_errors() -> None:
         replay_buffer_kwargs={"task_goal_ratio": 0.0},
         policy_kwargs=TINY,
     )
+
+
+def morefree_line(alpha: float) -> object:
+    def wrap(env: gym.Env) -> gym.Env:
+        scheduler_kwargs = {"alpha": alpha, "exploratory": "env_default"}
+        return GoExploreWrapper(ResetFreeWrapper(env), "back_and_forth", scheduler_kwargs, eval_horizon=10)
+
+    return wrap
+
+
+def test_alpha_is_read_from_the_scheduler_and_a_second_different_alpha_is_refused() -> None:
+    env = make_vec_env(LineGoalEnv, n_envs=2, seed=0, wrapper_class=morefree_line(0.3))
+    model = SAC("MultiInputPolicy", env, replay_buffer_class=TaskRelevantHerReplayBuffer, policy_kwargs=TINY)
+    assert model.replay_buffer.task_goal_ratio == 0.3  # stated once, in the scheduler
+    same = {"task_goal_ratio": 0.3}
+    SAC("MultiInputPolicy", env, replay_buffer_class=TaskRelevantHerReplayBuffer, replay_buffer_kwargs=same)
+    with pytest.raises(ValueError, match="alpha given twice with different values"):
+        SAC(
+            "MultiInputPolicy",
+            env,
+            replay_buffer_class=TaskRelevantHerReplayBuffer,
+            replay_buffer_kwargs={"task_goal_ratio": 0.2},
+            policy_kwargs=TINY,
+        )

@@ -78,8 +78,8 @@ def test_every_config_builds_its_wrapped_env(config: Path) -> None:
     env = gym.make(env_id)
     env = wrapper(env) if wrapper is not None else env
     env.reset(seed=0)
-    if hasattr(env, "enable_reset_free"):
-        env.enable_reset_free()
+    if hasattr(env, "set_training_mode"):
+        env.set_training_mode(True)
     env.action_space.seed(0)
     for _ in range(60):
         _, _, terminated, truncated, info = env.step(env.action_space.sample())

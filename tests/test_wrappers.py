@@ -92,7 +92,7 @@ def umaze_morefree(alpha: float = 0.2, hard_reset_every: int = 200_000, eval_hor
 def test_full_chain_passes_env_checkers(reset_free: bool) -> None:
     env = umaze_morefree()
     if reset_free:
-        env.enable_reset_free()
+        env.set_training_mode(True)
     gym_check_env(env, skip_render_check=True)
     sb3_check_env(env, warn=False)
 
@@ -108,10 +108,12 @@ def test_bad_hyperparameters_raise() -> None:
         ResetFreeWrapper(LineGoalEnv(), hard_reset_every=0)
     with pytest.raises(ValueError, match="eval_horizon"):
         GoExploreWrapper(LineGoalEnv(), "env_default")
-    with pytest.raises(ValueError, match="goal_low and goal_high"):
-        GoalCommandWrapper(gym.make("PointMaze_UMaze-v3"), "novelty")  # unbounded achieved_goal space
-    bounded = GoalCommandWrapper(LineGoalEnv(), "novelty")  # bounds taken from the achieved_goal space
-    np.testing.assert_array_equal(bounded.scheduler.goal_space.low, [-10.0])
+    with pytest.raises(ValueError, match="pass both goal_low and goal_high, or neither"):
+        GoalCommandWrapper(LineGoalEnv(), "novelty", {"goal_low": [-1.0]})
+    with pytest.raises(ValueError, match=r"scheduler 'novelty' does not use \['alpha'\]"):
+        GoalCommandWrapper(LineGoalEnv(), "novelty", {"alpha": 0.2})  # alpha belongs to back_and_forth
+    with pytest.raises(ValueError, match=r"scheduler 'env_default' does not use \['n_bins'\]"):
+        GoalCommandWrapper(LineGoalEnv(), "back_and_forth", {"exploratory": "env_default", "n_bins": 4})
     with pytest.raises(ValueError, match="Unknown goal scheduler 'peg'"):
         GoalCommandWrapper(LineGoalEnv(), "peg")
     with pytest.raises(ValueError, match="explore_policy"):
@@ -133,7 +135,7 @@ def run(env: gym.Env, n_steps: int, action: float = 0.0) -> list[tuple[bool, boo
 def test_interventions_and_segments() -> None:
     env = ResetFreeWrapper(LineGoalEnv(), hard_reset_every=50, segment_length=20)
     env.reset(seed=0)
-    env.enable_reset_free()
+    env.set_training_mode(True)
     steps = run(env, 200)
     truncations = [i + 1 for i, (term, trunc, _) in enumerate(steps) if trunc]
     # segments of 20 restarted at every hard reset (step 50, 100, 150, 200): 20, 40, 50, 70, 90, 100, ...
@@ -146,7 +148,7 @@ def test_interventions_and_segments() -> None:
 def test_segment_reset_keeps_the_physical_state() -> None:
     env = ResetFreeWrapper(LineGoalEnv(), hard_reset_every=1000, segment_length=5)
     env.reset(seed=0)
-    env.enable_reset_free()
+    env.set_training_mode(True)
     for _ in range(5):
         obs, _, _, truncated, _ = env.step(np.array([0.1], dtype=np.float32))
     assert truncated
@@ -160,7 +162,7 @@ def test_segment_reset_keeps_the_physical_state() -> None:
 def test_true_terminal_is_passed_and_counted() -> None:
     env = ResetFreeWrapper(LineGoalEnv(terminal_at=0.5), hard_reset_every=1000, segment_length=100)
     env.reset(seed=0)
-    env.enable_reset_free()
+    env.set_training_mode(True)
     steps = run(env, 8, action=0.1)
     terminated = [i + 1 for i, (term, _, _) in enumerate(steps) if term]
     assert terminated and not steps[terminated[0] - 1][1]  # terminated, not disguised as a truncation
@@ -170,7 +172,7 @@ def test_true_terminal_is_passed_and_counted() -> None:
 def test_inner_time_limit_is_lifted_in_reset_free_mode() -> None:
     env = ResetFreeWrapper(gym.make(UMAZE_GOAL), hard_reset_every=10_000, segment_length=100)  # inner limit 300
     env.reset(seed=0)
-    env.enable_reset_free()
+    env.set_training_mode(True)
     rng = np.random.default_rng(0)
     for _ in range(700):
         _, _, terminated, truncated, _ = env.step(rng.uniform(-1, 1, 2).astype(np.float32))
@@ -192,7 +194,7 @@ def test_commanded_goal_reward_and_success_are_recomputed() -> None:
     goal = np.array([0.3])
     env = GoalCommandWrapper(ResetFreeWrapper(LineGoalEnv(), segment_length=50), FixedGoalScheduler(goal))
     env.reset(seed=0)
-    env.enable_reset_free()
+    env.set_training_mode(True)
     obs, _ = env.reset()
     assert obs["desired_goal"][0] == pytest.approx(0.3)
     rewards, successes = [], []
@@ -211,7 +213,7 @@ def test_commanding_does_not_leak_into_inner_observations() -> None:
     inner = ResetFreeWrapper(LineGoalEnv(), segment_length=3)
     env = GoalCommandWrapper(inner, FixedGoalScheduler(np.array([-2.0])))
     env.reset(seed=0)
-    env.enable_reset_free()
+    env.set_training_mode(True)
     env.reset()
     for _ in range(3):
         env.step(np.zeros(1, dtype=np.float32))
@@ -230,7 +232,7 @@ def test_task_goals_learned_from_physical_resets_only() -> None:
     assert not env.task_goals.declared
     for seed in range(3):
         env.reset(seed=seed)
-    env.enable_reset_free()
+    env.set_training_mode(True)
     for _ in range(20):
         _, _, _, truncated, _ = env.step(np.array([0.1], dtype=np.float32))
         if truncated:
@@ -247,7 +249,7 @@ def go_explore_line(goal: float, go: int = 5, explore: int = 3) -> GoExploreWrap
         ResetFreeWrapper(LineGoalEnv()), FixedGoalScheduler(np.array([goal])), go_steps=go, explore_steps=explore
     )
     env.reset(seed=0)
-    env.enable_reset_free()
+    env.set_training_mode(True)
     env.reset()
     return env
 
@@ -276,7 +278,7 @@ def test_go_phase_ends_when_the_goal_is_reached() -> None:
 def test_back_and_forth_phase_sequence_through_the_wrapper() -> None:
     env = umaze_morefree(alpha=1.0, eval_horizon=20)
     env.reset(seed=0)
-    env.enable_reset_free()
+    env.set_training_mode(True)
     kinds, goals = [], []
     for _ in range(6):
         env.reset()
@@ -296,7 +298,7 @@ def test_seeding_is_deterministic() -> None:
         env = umaze_morefree(alpha=0.5, eval_horizon=20)
         env.reset(seed=3)
         env.action_space.seed(3)
-        env.enable_reset_free()
+        env.set_training_mode(True)
         out = []
         for _ in range(120):
             obs, _, _, truncated, _ = env.step(env.action_space.sample())

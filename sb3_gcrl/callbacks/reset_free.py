@@ -1,8 +1,8 @@
 """Callback that switches the training env to reset-free mode and logs interventions and goal statistics.
 
 The reset-free wrappers (:mod:`sb3_gcrl.wrappers`) start episodic, because RL-Zoo builds the eval env with the same
-``env_wrapper`` as the train env and evaluation must stay episodic (issue 3, item 6). This callback, put in the
-``callback`` list of the config, calls ``enable_reset_free()`` on the *training* env only, at the start of
+``env_wrapper`` as the train env and evaluation must stay episodic (:mod:`sb3_gcrl.wrappers.mode`). This callback, in
+the ``callback`` list of the config, calls ``set_training_mode(True)`` on the *training* env only, at the start of
 ``learn``; the eval env is never touched and keeps resetting to rho_0 with goals from rho_g* for T_eval steps.
 
 Logged every ``log_freq`` calls (``reset_free/`` prefix): ``interventions`` (physical resets, summed over envs),
@@ -14,9 +14,11 @@ from __future__ import annotations
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_gcrl.wrappers.mode import switch_training_envs
+
 
 class ResetFreeCallback(BaseCallback):
-    """Enable reset-free mode on the training env; log interventions and commanded-goal statistics.
+    """Switch the training env to training (reset-free) mode; log interventions and commanded-goal statistics.
 
     :param log_freq: log every ``log_freq`` calls of ``on_step`` (i.e. ``log_freq * n_envs`` env steps).
     :param verbose: verbosity.
@@ -30,13 +32,12 @@ class ResetFreeCallback(BaseCallback):
 
     def _on_training_start(self) -> None:
         env = self.training_env
-        if not env.has_attr("enable_reset_free"):
-            raise TypeError(
-                "ResetFreeCallback: the training env has no reset-free wrapper; wrap it in "
-                "sb3_gcrl.wrappers.ResetFreeWrapper (and GoExploreWrapper/GoalCommandWrapper), e.g. with env_wrapper "
-                "in the RL-Zoo YAML"
-            )
-        env.env_method("enable_reset_free")
+        switch_training_envs(
+            env,
+            "sb3_gcrl.callbacks.ResetFreeCallback",
+            "sb3_gcrl.wrappers.ResetFreeWrapper (and GoExploreWrapper/GoalCommandWrapper), e.g. with env_wrapper "
+            "in the RL-Zoo YAML",
+        )
         if self.verbose > 0:
             print(f"ResetFreeCallback: reset-free mode on for {env.num_envs} training env(s)")
 

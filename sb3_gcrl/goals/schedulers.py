@@ -17,10 +17,12 @@ may learn from every achieved goal through :meth:`GoalScheduler.observe`. Schedu
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 
-from sb3_gcrl.goals.goal_space import BinnedGoalSpace
+from sb3_gcrl.goals.goal_space import BinnedGoalSpace, binned_goal_space_for
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 
 
@@ -45,6 +47,12 @@ class GoalScheduler(ABC):
         """Learn from an achieved goal (called after every env step and reset). No-op by default.
 
         :param achieved_goal: shape ``(goal_dim,)``.
+        """
+
+    def observe_task_goal(self, goal: np.ndarray) -> None:  # noqa: B027 (optional hook)
+        """Learn from a task-relevant goal the env showed (its desired goal at a physical reset). No-op by default.
+
+        :param goal: shape ``(goal_dim,)``.
         """
 
     def reset_pending(self) -> None:  # noqa: B027 (optional hook)
@@ -90,6 +98,9 @@ class UniformVisitedScheduler(GoalScheduler):
 
     def observe(self, achieved_goal: np.ndarray) -> None:
         self.goal_space.record(achieved_goal)
+
+    def observe_task_goal(self, goal: np.ndarray) -> None:
+        self.goal_space.extend(goal)  # inferred bounds cover the task's goals from the start
 
     def _prepare(self, obs: dict[str, np.ndarray]) -> None:
         if self.goal_space.n_visited == 0:
@@ -141,6 +152,9 @@ class BackAndForthScheduler(GoalScheduler):
     def observe(self, achieved_goal: np.ndarray) -> None:
         self.exploratory.observe(achieved_goal)
 
+    def observe_task_goal(self, goal: np.ndarray) -> None:
+        self.exploratory.observe_task_goal(goal)
+
     def reset_pending(self) -> None:
         self._pending_back = None
         self.exploratory.reset_pending()
@@ -168,39 +182,63 @@ def make_scheduler(
     task_goals: TaskRelevantGoals,
     goal_low: np.ndarray | list[float] | None = None,
     goal_high: np.ndarray | list[float] | None = None,
-    n_bins: int | list[int] = 10,
-    within_bin: str = "visited",
-    tau: float = 1.0,
-    alpha: float = 0.2,
-    exploratory: str = "novelty",
+    n_bins: int | list[int] | None = None,
+    within_bin: str | None = None,
+    tau: float | None = None,
+    alpha: float | None = None,
+    exploratory: str | None = None,
+    achieved_goal_space: spaces.Space | None = None,
 ) -> GoalScheduler:
     """Build a scheduler from plain values (what an RL-Zoo YAML ``env_wrapper`` entry can hold).
 
+    A value that the chosen scheduler would not use is an error, not silently ignored.
+
     :param name: one of :data:`SCHEDULERS`.
     :param task_goals: the env's task-relevant goals (rho_0, rho_g*).
-    :param goal_low: lower bounds of the binned goal space (visited-goal schedulers only).
-    :param goal_high: upper bounds of the binned goal space (visited-goal schedulers only).
-    :param n_bins: bins per goal dimension.
-    :param within_bin: ``"uniform"`` (thesis Ch. 6) or ``"visited"`` (a recorded achieved goal of the bin).
-    :param tau: temperature of Eq. 6.5 (``novelty``).
-    :param alpha: probability of a forward/back pair (``back_and_forth``).
-    :param exploratory: name of the exploratory scheduler inside ``back_and_forth``.
+    :param goal_low: lower bounds of the binned goal space; leave ``goal_low`` and ``goal_high`` out to infer the
+        bounds from the goals the env shows (rho_0/rho_g* at resets and the achieved goals).
+    :param goal_high: upper bounds of the binned goal space.
+    :param n_bins: bins per goal dimension (default 10).
+    :param within_bin: ``"uniform"`` (thesis Ch. 6) or ``"visited"`` (default: a recorded achieved goal of the bin).
+    :param tau: temperature of Eq. 6.5 (``novelty``; default 1).
+    :param alpha: probability of a forward/back pair (``back_and_forth`` only; default 0.2, thesis Sec. 3.7.3).
+    :param exploratory: name of the exploratory scheduler inside ``back_and_forth`` (default ``"novelty"``).
+    :param achieved_goal_space: the env's ``achieved_goal`` space; visited-goal schedulers bin it with
+        :func:`~sb3_gcrl.goals.binned_goal_space_for` (discrete spaces one bin per value, image goals refused).
+        ``None`` means a vector goal of ``len(goal_low)`` dimensions.
     :return: the scheduler.
     """
+    given = {key: value for key, value in locals().items() if key not in ("name", "task_goals") and value is not None}
+    if name not in SCHEDULERS:
+        raise ValueError(f"Unknown goal scheduler {name!r}; choose one of {list(SCHEDULERS)}")
+    if name == "back_and_forth":
+        exploratory = "novelty" if exploratory is None else exploratory
+        if exploratory == "back_and_forth":
+            raise ValueError("the exploratory scheduler of back_and_forth cannot itself be back_and_forth")
+        inner_kwargs: dict[str, Any] = {key: val for key, val in given.items() if key not in ("alpha", "exploratory")}
+        inner = make_scheduler(exploratory, task_goals, **inner_kwargs)
+        return BackAndForthScheduler(task_goals, inner, 0.2 if alpha is None else alpha)
+    uses = {"achieved_goal_space"}
+    if name in ("uniform_visited", "novelty"):
+        uses |= {"goal_low", "goal_high", "n_bins", "within_bin"} | ({"tau"} if name == "novelty" else set())
+    unused = sorted(set(given) - uses)
+    if unused:
+        raise ValueError(f"scheduler {name!r} does not use {unused}: remove them (only back_and_forth takes alpha)")
     if name == "env_default":
         return EnvDefaultScheduler()
     if name == "evaluation":
         return EvaluationGoalScheduler(task_goals)
-    if name in ("uniform_visited", "novelty"):
-        if goal_low is None or goal_high is None:
-            raise ValueError(
-                f"scheduler {name!r} bins the visited goals: pass goal_low and goal_high (goal-space bounds)"
-            )
-        space = BinnedGoalSpace(goal_low, goal_high, n_bins, within_bin)  # type: ignore[arg-type]
-        return NoveltyScheduler(space, tau) if name == "novelty" else UniformVisitedScheduler(space)
-    if name == "back_and_forth":
-        if exploratory == "back_and_forth":
-            raise ValueError("the exploratory scheduler of back_and_forth cannot itself be back_and_forth")
-        inner = make_scheduler(exploratory, task_goals, goal_low, goal_high, n_bins, within_bin, tau)
-        return BackAndForthScheduler(task_goals, inner, alpha)
-    raise ValueError(f"Unknown goal scheduler {name!r}; choose one of {list(SCHEDULERS)}")
+    if achieved_goal_space is None:
+        if goal_low is None:
+            raise ValueError(f"scheduler {name!r} bins visited goals: pass goal_low and goal_high, or the goal space")
+        achieved_goal_space = spaces.Box(-np.inf, np.inf, (len(np.asarray(goal_low).reshape(-1)),))
+    space = binned_goal_space_for(
+        achieved_goal_space,
+        goal_low,
+        goal_high,
+        n_bins,
+        "visited" if within_bin is None else within_bin,  # type: ignore[arg-type]
+    )
+    if name == "novelty":
+        return NoveltyScheduler(space, 1.0 if tau is None else tau)
+    return UniformVisitedScheduler(space)

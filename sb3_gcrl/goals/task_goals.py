@@ -6,11 +6,14 @@ on two task-relevant goal distributions:
 * rho_0: initial states of the task, expressed in goal space (the "back" goals that emulate a reset);
 * rho_g*: the evaluation goals (the "forward" goals).
 
-Contract (DESIGN.md, contract 1): an env *declares* them with two methods on its unwrapped env,
+An env *declares* them with two methods on its unwrapped env,
 ``sample_initial_goal(rng) -> np.ndarray`` and ``sample_evaluation_goal(rng) -> np.ndarray``. Any other
 goal env works unchanged: the distributions are *learned* from what the env shows at its own resets
 (``achieved_goal`` at reset is a sample of rho_0, ``desired_goal`` at reset a sample of rho_g*), and sampled
 uniformly from the recorded resets.
+
+Goals of any shape are handled flat: a sample is a row of ``goal_dim = prod(achieved_goal shape)`` values
+(a ``Discrete`` goal is one value, an image goal its flattened pixels); callers reshape to their layout.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ EVALUATION_GOAL_METHOD = "sample_evaluation_goal"
 
 
 def declares_task_goals(env: gym.Env) -> bool:
-    """Whether ``env.unwrapped`` declares both task-relevant goal samplers (DESIGN.md contract 1).
+    """Whether ``env.unwrapped`` declares both task-relevant goal samplers.
 
     :param env: any gymnasium env (wrapped or not).
     :return: True when ``sample_initial_goal`` and ``sample_evaluation_goal`` are both callable.
@@ -42,11 +45,12 @@ def declares_task_goals(env: gym.Env) -> bool:
 class TaskRelevantGoals:
     """Sampler of rho_0 and rho_g*, declared by the env or learned from its resets.
 
-    Learned samples are kept in preallocated ring buffers of ``capacity`` rows; once full, the oldest
+    Learned samples are kept in ring buffers of at most ``capacity`` rows (grown by doubling as resets come,
+    so a reset-free run with a few hard resets keeps a few rows even for image goals); once full, the oldest
     reset is overwritten (so a non-stationary reset distribution is tracked).
 
     :param env: the goal env (its ``unwrapped`` is checked for the two sampler methods).
-    :param goal_dim: dimension of the goal space (``achieved_goal`` shape[0]).
+    :param goal_dim: number of values of one goal (``prod`` of the ``achieved_goal`` shape).
     :param capacity: number of learned resets remembered (only used when the env does not declare samplers).
     """
 
@@ -57,8 +61,8 @@ class TaskRelevantGoals:
         self.declared = declares_task_goals(env)
         self.goal_dim = goal_dim
         self.capacity = capacity
-        self._initial = np.zeros((capacity, goal_dim), dtype=np.float64)
-        self._evaluation = np.zeros((capacity, goal_dim), dtype=np.float64)
+        self._initial = np.zeros((min(capacity, 16), goal_dim), dtype=np.float64)
+        self._evaluation = np.zeros_like(self._initial)
         self._n_recorded = 0
 
     @property
@@ -72,8 +76,12 @@ class TaskRelevantGoals:
         :param obs: the Dict observation returned by the env's ``reset``.
         """
         row = self._n_recorded % self.capacity
-        self._initial[row] = obs["achieved_goal"]
-        self._evaluation[row] = obs["desired_goal"]
+        if row == len(self._initial) < self.capacity:
+            rows = min(2 * row, self.capacity)
+            self._initial = np.concatenate([self._initial, np.zeros((rows - row, self.goal_dim))])
+            self._evaluation = np.concatenate([self._evaluation, np.zeros((rows - row, self.goal_dim))])
+        self._initial[row] = np.ravel(obs["achieved_goal"])
+        self._evaluation[row] = np.ravel(obs["desired_goal"])
         self._n_recorded += 1
 
     def sample(self, kind: GoalKind, rng: np.random.Generator, n: int = 1) -> np.ndarray:
@@ -82,7 +90,7 @@ class TaskRelevantGoals:
         :param kind: ``"initial"`` or ``"evaluation"``.
         :param rng: random generator (used for learned distributions and passed to declared samplers).
         :param n: number of goals.
-        :return: array of shape ``(n, goal_dim)``.
+        :return: array of shape ``(n, goal_dim)`` (flat goals).
         """
         if kind not in ("initial", "evaluation"):
             raise ValueError(f"kind must be 'initial' or 'evaluation', got {kind!r}")
@@ -90,7 +98,7 @@ class TaskRelevantGoals:
             method = getattr(self._unwrapped, INITIAL_GOAL_METHOD if kind == "initial" else EVALUATION_GOAL_METHOD)
             out = np.empty((n, self.goal_dim), dtype=np.float64)
             for i in range(n):
-                out[i] = method(rng)
+                out[i] = np.ravel(method(rng))
             return out
         if self._n_recorded == 0:
             raise RuntimeError(

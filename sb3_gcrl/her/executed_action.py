@@ -1,9 +1,9 @@
-"""Replay buffers that store the action the env executed, not the ignored policy action (DESIGN.md contract 4).
+"""Replay buffers that store the action the env executed, not the ignored policy action.
 
 Explore phases (:class:`~sb3_gcrl.wrappers.GoExploreWrapper`) and post-exploration replace the agent's action
 inside the env. SB3's ``OffPolicyAlgorithm.collect_rollouts`` stores the *policy's* action (``buffer_actions``) and
 passes the step's ``infos`` to ``replay_buffer.add``; these buffers read ``info["executed_action"]`` and store that
-action instead. Of the three mechanisms listed in ENVIRONMENT.md (algorithm mixin overriding
+action instead. Of the three possible mechanisms (algorithm mixin overriding
 ``_store_transition``, buffer reading ``infos``, callback writing into ``locals``) this one works with every stock
 SB3 off-policy algorithm, from an RL-Zoo YAML (``replay_buffer_class``), with HER and with ``n_envs > 1``, and
 relies only on the public ``add(..., infos)`` signature.

@@ -6,6 +6,11 @@ this with imagined rollouts of a world model; in this model-free port the same b
 of the relabeled part of each batch (``her_ratio = n_sampled_goal / (n_sampled_goal + 1)``), a fraction alpha/2
 gets an evaluation goal, alpha/2 an initial-state goal, and the rest the standard strategy (``future`` by
 default). Rewards are recomputed with the env's ``compute_reward`` as in :class:`HerReplayBuffer`.
+
+alpha is stated once: left out (``task_goal_ratio=None``), it is read from the env's Back-and-Forth scheduler
+(:attr:`sb3_gcrl.wrappers.GoalCommandWrapper.task_goal_alpha`), the same alpha that selects the goals of data
+collection (Algorithm 2 uses one alpha for both). Give ``task_goal_ratio`` only where the env's scheduler has no
+alpha (e.g. the ablation without Back-and-Forth); giving it with a different value than the scheduler's is an error.
 """
 
 from __future__ import annotations
@@ -45,7 +50,8 @@ class TaskRelevantHerReplayBuffer(ExecutedActionHerReplayBuffer):
     :param observation_space: see :class:`HerReplayBuffer`.
     :param action_space: see :class:`HerReplayBuffer`.
     :param env: the training VecEnv (serves ``compute_reward`` and the task-relevant goals).
-    :param task_goal_ratio: alpha of Section 3.4.2 (thesis: 0.2); 0 gives standard HER (with executed actions).
+    :param task_goal_ratio: alpha of Section 3.4.2 (thesis: 0.2); 0 gives standard HER (with executed actions);
+        ``None`` (default) reads alpha from the env's scheduler.
     :param kwargs: the other :class:`HerReplayBuffer` arguments (``n_sampled_goal``, ``goal_selection_strategy``...).
     """
 
@@ -55,22 +61,54 @@ class TaskRelevantHerReplayBuffer(ExecutedActionHerReplayBuffer):
         observation_space: spaces.Dict,
         action_space: spaces.Space,
         env: VecEnv,
-        task_goal_ratio: float = 0.2,
+        task_goal_ratio: float | None = None,
         **kwargs: Any,
     ) -> None:
-        if not 0.0 <= task_goal_ratio <= 1.0:
+        if task_goal_ratio is not None and not 0.0 <= task_goal_ratio <= 1.0:
             raise ValueError(f"task_goal_ratio (alpha) must be in [0, 1], got {task_goal_ratio}")
         super().__init__(buffer_size, observation_space, action_space, env, **kwargs)
-        self.task_goal_ratio = float(task_goal_ratio)
-        if self.task_goal_ratio > 0 and env is not None and not _serves_task_goals(env):
+        #: alpha as given (None: the env's scheduler's); the alpha in use is :attr:`task_goal_ratio`
+        self.given_task_goal_ratio = None if task_goal_ratio is None else float(task_goal_ratio)
+        self.task_goal_ratio: float | None = self.given_task_goal_ratio
+        if env is not None:
+            self._resolve_task_goal_ratio(env)
+
+    def _resolve_task_goal_ratio(self, env: VecEnv) -> None:
+        """Settle alpha against the env: read it from the scheduler, or check the given one matches it."""
+        given = self.given_task_goal_ratio
+        serves = _serves_task_goals(env)
+        alphas = set(env.get_attr("task_goal_alpha")) if serves and env.has_attr("task_goal_alpha") else {None}
+        if len(alphas) > 1:
+            raise ValueError(f"the envs' schedulers have different alphas {sorted(alphas, key=str)}: use one alpha")
+        (env_alpha,) = alphas
+        if given is None:
+            if env_alpha is None:
+                raise ValueError(
+                    "TaskRelevantHerReplayBuffer: pass task_goal_ratio (alpha of Sec. 3.4.2), or wrap the env in "
+                    "GoExploreWrapper/GoalCommandWrapper with scheduler='back_and_forth', whose alpha is then used"
+                )
+            self.task_goal_ratio = env_alpha
+        elif env_alpha is not None and env_alpha != given:
+            raise ValueError(
+                f"alpha given twice with different values: task_goal_ratio={given} but the env's back_and_forth "
+                f"scheduler has alpha={env_alpha}; drop task_goal_ratio (the scheduler's alpha is used)"
+            )
+        if self.task_goal_ratio and not serves:
             raise TypeError(
                 "TaskRelevantHerReplayBuffer needs the env to serve task-relevant goals: wrap it in "
                 "sb3_gcrl.wrappers.GoalCommandWrapper or GoExploreWrapper (env_wrapper in an RL-Zoo YAML), "
                 "or set task_goal_ratio=0."
             )
 
+    def set_env(self, env: VecEnv) -> None:
+        """Set the env (after loading the buffer) and settle alpha against it."""
+        super().set_env(env)
+        self._resolve_task_goal_ratio(env)
+
     def _sample_goals(self, batch_indices: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
         goals = super()._sample_goals(batch_indices, env_indices)
+        if self.task_goal_ratio is None:
+            raise RuntimeError("TaskRelevantHerReplayBuffer has no env to read alpha from: call set_env() first")
         if self.task_goal_ratio == 0.0:
             return goals
         # one uniform per relabeled transition: [0, a/2) -> rho_g*, [a/2, a) -> rho_0, [a, 1) -> standard strategy
@@ -80,5 +118,6 @@ class TaskRelevantHerReplayBuffer(ExecutedActionHerReplayBuffer):
             n = int(mask.sum())
             if n > 0:
                 assert self.env is not None, "call set_env() after loading the buffer"
-                goals[mask] = self.env.env_method(TASK_GOALS_METHOD, kind, n, indices=[0])[0]
+                flat = self.env.env_method(TASK_GOALS_METHOD, kind, n, indices=[0])[0]
+                goals[mask] = flat.reshape(n, *goals.shape[1:])  # the buffer's goal layout (image, Discrete (1,))
         return goals

@@ -6,12 +6,13 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_gcrl.post_exploration.metrics import coverage, visitation_entropy
+from sb3_gcrl.wrappers.mode import switch_training_envs
 
 
 class PostExplorationCallback(BaseCallback):
     """Enable :class:`~sb3_gcrl.post_exploration.PostExplorationWrapper` training mode; log its statistics.
 
-    At the start of training it calls ``enable_post_exploration()`` on the training env only (the eval env that
+    At the start of training it calls ``set_training_mode(True)`` on the training env only (the eval env that
     RL-Zoo wraps the same way stays episodic) and checks that the replay buffer stores executed actions. Every
     ``log_freq`` calls it records (``post_exploration/`` prefix): ``steps`` (post-exploration steps so far),
     ``goals_reached_rate`` (commanded goals reached per episode), ``goal_space_size`` (visited bins),
@@ -33,7 +34,7 @@ class PostExplorationCallback(BaseCallback):
 
     def _on_training_start(self) -> None:
         env = self.training_env
-        if not env.has_attr("enable_post_exploration"):
+        if not env.has_attr("switching_callback"):
             raise TypeError(
                 "PostExplorationCallback: the training env is not wrapped in "
                 "sb3_gcrl.post_exploration.PostExplorationWrapper; add it (e.g. env_wrapper in the RL-Zoo YAML)"
@@ -45,7 +46,9 @@ class PostExplorationCallback(BaseCallback):
                 "executed during post-exploration; use replay_buffer_class=sb3_gcrl.her.ExecutedActionHerReplayBuffer "
                 "(YAML: \"__import__('sb3_gcrl.her').her.ExecutedActionHerReplayBuffer\")"
             )
-        env.env_method("enable_post_exploration")
+        switch_training_envs(
+            env, "sb3_gcrl.post_exploration.PostExplorationCallback", "sb3_gcrl.post_exploration.PostExplorationWrapper"
+        )
         if self.verbose > 0:
             print(f"PostExplorationCallback: IMGEP training mode on for {env.num_envs} training env(s)")
 

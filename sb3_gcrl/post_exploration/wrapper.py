@@ -32,7 +32,7 @@ from sb3_gcrl.goals.goal_space import BinnedGoalSpace
 from sb3_gcrl.goals.schedulers import GoalScheduler
 from sb3_gcrl.post_exploration.rules import NoveltyAdaptive, PostExplorationRule, make_post_exploration_rule
 from sb3_gcrl.wrappers.go_explore import EXECUTED_ACTION_KEY
-from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
+from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper, scalar_reward
 
 #: info key marking post-exploration steps
 POST_EXPLORATION_KEY = "post_exploration"
@@ -53,7 +53,12 @@ class PostExplorationWrapper(GoalCommandWrapper):
     :param scheduler_kwargs: kwargs of :func:`~sb3_gcrl.goals.make_scheduler`, e.g. ``{"tau": 0.01,
         "goal_low": [-1.5, -1.5], "goal_high": [1.5, 1.5], "n_bins": 100, "within_bin": "uniform"}``.
     :param success_distance: see :class:`~sb3_gcrl.wrappers.GoalCommandWrapper`.
+
+    ``set_training_mode(True)`` (called by the callback) switches training mode on: command goals, post-explore,
+    end episodes at the goal; episodes stay episodic (no reset-free segments).
     """
+
+    switching_callback = "sb3_gcrl.post_exploration.PostExplorationCallback"
 
     def __init__(
         self,
@@ -102,10 +107,6 @@ class PostExplorationWrapper(GoalCommandWrapper):
         self._reached_episode = False
         self._requested_goal: np.ndarray | None = None
 
-    def enable_post_exploration(self) -> None:
-        """Training mode: command goals, post-explore, end episodes at the goal (called by the callback)."""
-        self.enable_reset_free()  # GoalCommandWrapper's switch to commanding mode (episodes stay episodic here)
-
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -115,13 +116,13 @@ class PostExplorationWrapper(GoalCommandWrapper):
         requested = options.pop("goal", None)
         obs, info = super().reset(seed=seed, options=options or None)
         if requested is not None:  # explicit goal (all-goals evaluation), in either mode
-            self._set_goal(requested, obs)
+            self._set_goal(requested)
             self._requested_goal = self.goal
             obs = self._command(obs)
         else:
             self._requested_goal = None
         self._post_left, self._steps, self._reached_episode = 0, 0, False
-        if self.mode != "episodic":
+        if self.training:
             self.episodes += 1
         return obs, info
 
@@ -133,11 +134,11 @@ class PostExplorationWrapper(GoalCommandWrapper):
         return float(counts[self.goal_space.bin_index(goal)]), float(np.median(counts[counts > 0]))
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
-        if self.mode == "episodic":
+        if not self.training:
             if self._requested_goal is None:
                 return super().step(action)
             obs, _, terminated, truncated, info = self.env.step(action)
-            reward = float(self._compute_reward(obs["achieved_goal"], self.goal, info))
+            reward = scalar_reward(self._compute_reward(obs["achieved_goal"], self._goal_obs, info))
             info["is_success"] = self.is_success(obs["achieved_goal"], self.goal, info)  # type: ignore[arg-type]
             return self._command(obs), reward, terminated, truncated, info
         post_exploring = self._post_left > 0

@@ -5,7 +5,7 @@ ends early once the goal is reached), then an Explore phase of ``explore_steps``
 policy *replaces* the agent's action. The thesis sets H_G = H_E = half the evaluation horizon (Section 3.7.2,
 "reset-free PEG"); so do the defaults here.
 
-Executed actions (DESIGN.md contract 4): during Explore the env executes the exploration action, not the agent's.
+Executed actions: during Explore the env executes the exploration action, not the agent's.
 The wrapper reports it as ``info["executed_action"]`` and the replay buffers of :mod:`sb3_gcrl.her`
 (:class:`~sb3_gcrl.her.ExecutedActionHerReplayBuffer` and subclasses) store that action instead of the ignored
 policy action. This works with stock SB3 algorithms and from an RL-Zoo YAML (``replay_buffer_class``).
@@ -25,6 +25,8 @@ from gymnasium import spaces
 
 from sb3_gcrl.goals.schedulers import GoalScheduler
 from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
+from sb3_gcrl.wrappers.mode import find_wrapper
+from sb3_gcrl.wrappers.reset_free import ResetFreeWrapper
 
 ExplorePolicy = Callable[[dict[str, np.ndarray], np.random.Generator], np.ndarray]
 
@@ -40,12 +42,15 @@ class GoExploreWrapper(GoalCommandWrapper):
     :param scheduler: goal scheduler or its name (see :class:`GoalCommandWrapper`); ``"back_and_forth"`` is
         MoReFree's Back-and-Forth Go-Explore, ``"novelty"`` alone is reset-free Go-Explore (alpha = 0).
     :param scheduler_kwargs: keyword arguments of :func:`~sb3_gcrl.goals.make_scheduler`.
-    :param eval_horizon: evaluation episode length T_eval; the default H_G = H_E = T_eval // 2.
+    :param eval_horizon: evaluation episode length T_eval; the default H_G = H_E = T_eval // 2. Read from the
+        :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` below when left out (state it once, there); giving both
+        with different values is an error.
     :param go_steps: H_G, the longest Go phase (overrides the default from ``eval_horizon``).
     :param explore_steps: H_E, the Explore phase length, may be 0 (overrides the default from ``eval_horizon``).
     :param explore_policy: ``"random"`` (uniform actions from the action space) or a callable
         ``(obs, rng) -> action`` returning an action of the env's action space.
-    :param end_go_on_success: end the Go phase as soon as the commanded goal is reached (issue 3, item 4).
+    :param end_go_on_success: end the Go phase as soon as the commanded goal is reached (Algorithm 1 always runs
+        H_G steps).
     :param success_distance: see :class:`GoalCommandWrapper`.
     :param task_goal_capacity: see :class:`GoalCommandWrapper`.
     """
@@ -80,9 +85,18 @@ class GoExploreWrapper(GoalCommandWrapper):
             task_goal_capacity=task_goal_capacity,
         )
         super().__init__(env, scheduler, scheduler_kwargs, success_distance, task_goal_capacity)
+        reset_free = find_wrapper(env, ResetFreeWrapper)
+        below = None if reset_free is None else reset_free.eval_horizon
+        if eval_horizon is not None and below is not None and int(eval_horizon) != below:
+            raise ValueError(
+                f"eval_horizon given twice with different values: GoExploreWrapper(eval_horizon={eval_horizon}) but "
+                f"ResetFreeWrapper(eval_horizon={below}) below it; give it once, to ResetFreeWrapper"
+            )
+        eval_horizon = below if eval_horizon is None else eval_horizon
         if (go_steps is None or explore_steps is None) and eval_horizon is None:
             raise ValueError(
-                "GoExploreWrapper needs eval_horizon (H_G = H_E = eval_horizon // 2) or go_steps and explore_steps"
+                "GoExploreWrapper needs eval_horizon (H_G = H_E = eval_horizon // 2): give it to the ResetFreeWrapper "
+                "below (or to GoExploreWrapper), or give go_steps and explore_steps"
             )
         half = None if eval_horizon is None else max(1, int(eval_horizon) // 2)
         self.go_steps = int(go_steps if go_steps is not None else half)  # type: ignore[arg-type]
@@ -132,7 +146,7 @@ class GoExploreWrapper(GoalCommandWrapper):
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
-        if self.mode == "episodic":
+        if not self.training:
             return super().step(action)
         phase = self.phase
         if phase == "explore":

@@ -1,33 +1,48 @@
 """Goal commanding: override ``desired_goal`` with a scheduled goal and recompute reward/success.
 
-DESIGN.md contract 3. At the start of every segment (every ``reset()`` SB3 calls) the wrapper asks its
+At the start of every segment (every ``reset()`` SB3 calls) the wrapper asks its
 :class:`~sb3_gcrl.goals.GoalScheduler` for a goal, writes it into ``desired_goal`` and recomputes the reward with
 the env's own vectorised ``compute_reward(achieved_goal, commanded_goal, info)``; ``info["is_success"]`` is
 recomputed for the commanded goal too. The wrapper also owns the env's task-relevant goals (rho_0, rho_g*,
 :class:`~sb3_gcrl.goals.TaskRelevantGoals`), which it learns from the env's physical resets when the env does not
 declare them, and serves them to the replay buffer (:meth:`sample_task_goals`).
 
-Like :class:`~sb3_gcrl.wrappers.ResetFreeWrapper`, commanding is active only in ``"reset_free"`` mode, switched on
-for the training env by :class:`~sb3_gcrl.callbacks.ResetFreeCallback`; in ``"episodic"`` mode (evaluation,
-``rl_zoo3 enjoy``) the env's own goal is kept, i.e. the agent starts from rho_0 and is evaluated on rho_g*.
+Like :class:`~sb3_gcrl.wrappers.ResetFreeWrapper`, commanding is active only in training mode
+(``set_training_mode(True)``, called for the training env by :class:`~sb3_gcrl.callbacks.ResetFreeCallback`, and
+passed on to a :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` below); in evaluation mode (``rl_zoo3 enjoy``, the
+eval env) the env's own goal is kept, i.e. the agent starts from rho_0 and is evaluated on rho_g*.
+
+Goals of any gymnasium space work (SB3's ``BitFlippingEnv`` in all its variants): ``Box`` vectors, ``MultiBinary``
+and ``Discrete`` goals (commanded as the env's own integer), and image goals (commanded pixel for pixel; only the
+binned visited-goal schedulers refuse them at construction).
 """
 
 from __future__ import annotations
 
-from typing import Any, Literal, SupportsFloat
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
+from gymnasium import spaces
 
 from sb3_gcrl.goals.schedulers import GoalScheduler, make_scheduler
 from sb3_gcrl.goals.task_goals import GoalKind, TaskRelevantGoals
 from sb3_gcrl.wrappers.goal_env import check_goal_env
+from sb3_gcrl.wrappers.mode import TrainingModeMixin, find_wrapper
 
-Mode = Literal["episodic", "reset_free"]
+
+def scalar_reward(reward: Any) -> float:
+    """A reward from a vectorised ``compute_reward`` called on one goal (a scalar or an array of one value)."""
+    try:
+        return float(reward)
+    except TypeError:  # e.g. BitFlippingEnv returns shape (1,), which numpy 2 will not convert with float()
+        return float(np.asarray(reward).reshape(-1)[0])
 
 
 class GoalCommandWrapper(
-    gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray], gym.utils.RecordConstructorArgs
+    TrainingModeMixin,
+    gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray],
+    gym.utils.RecordConstructorArgs,
 ):
     """Command scheduled goals to a goal env (reset-free training), recomputing reward and success.
 
@@ -37,7 +52,8 @@ class GoalCommandWrapper(
         ``novelty``, ``back_and_forth``).
     :param scheduler_kwargs: keyword arguments of :func:`~sb3_gcrl.goals.make_scheduler` when ``scheduler`` is a
         name (e.g. ``{"alpha": 0.2, "exploratory": "novelty", "goal_low": [-2, -2], "goal_high": [2, 2]}``);
-        ``goal_low``/``goal_high`` default to the bounds of a bounded ``achieved_goal`` space.
+        without ``goal_low``/``goal_high`` the bins follow the goals the env shows (never the nominal bounds of
+        the ``achieved_goal`` space, often far wider than the goals that occur).
     :param success_distance: success means ``||achieved_goal - goal|| <= success_distance``; ``None`` means the
         reward for the commanded goal equals the reward the env gives at the goal itself (exact for sparse
         rewards, e.g. PointMaze's 0/1 and Fetch's -1/0; pass a distance for dense rewards).
@@ -61,23 +77,27 @@ class GoalCommandWrapper(
             task_goal_capacity=task_goal_capacity,
         )
         super().__init__(env)
-        goal_dim = int(np.prod(env.observation_space["achieved_goal"].shape))
+        goal_space = env.observation_space["desired_goal"]
+        self._goal_shape = goal_space.shape
+        self._discrete_goal = isinstance(goal_space, spaces.Discrete)  # the env's goals are Python/numpy integers
+        self._goal_dtype = np.int64 if self._discrete_goal else goal_space.dtype
+        goal_dim = int(np.prod(self._goal_shape))
         self.task_goals = TaskRelevantGoals(env, goal_dim, capacity=task_goal_capacity)
         if isinstance(scheduler, GoalScheduler):
             if scheduler_kwargs:
                 raise ValueError("scheduler_kwargs only apply when scheduler is given by name")
             self.scheduler = scheduler
         else:
-            kwargs = dict(scheduler_kwargs or {})
             achieved_space = env.observation_space["achieved_goal"]
-            if "goal_low" not in kwargs and "goal_high" not in kwargs and achieved_space.is_bounded():
-                # bins over the achieved-goal space when it is bounded (e.g. GCRL/PointUMazeGoal-v0)
-                kwargs["goal_low"], kwargs["goal_high"] = achieved_space.low.tolist(), achieved_space.high.tolist()
-            self.scheduler = make_scheduler(scheduler, self.task_goals, **kwargs)
+            self.scheduler = make_scheduler(
+                scheduler, self.task_goals, achieved_goal_space=achieved_space, **(scheduler_kwargs or {})
+            )
         if success_distance is not None and not success_distance > 0:
             raise ValueError(f"success_distance must be > 0, got {success_distance}")
         self.success_distance = success_distance
-        self.mode: Mode = "episodic"
+        # a mode-switched wrapper below (ResetFreeWrapper) gets the switches passed on and warns instead of this one
+        self._mode_below: TrainingModeMixin | None = find_wrapper(env, TrainingModeMixin)
+        self._init_training_mode(warns=self._mode_below is None)
         self.goal: np.ndarray | None = None
         self.goal_kind = "env"
         #: goals commanded / reached (at least once while commanded), per scheduler label
@@ -86,20 +106,24 @@ class GoalCommandWrapper(
         self._reached = False
         self._success_reward: float | None = None
         self._compute_reward = env.unwrapped.compute_reward
-        self._goal_obs = np.zeros(goal_dim)
+        self._goal_obs: Any = None
         self._rng = np.random.default_rng()
         self._task_goal_rng = np.random.default_rng()
 
     # --- mode -------------------------------------------------------------------------------------------------
-    def enable_reset_free(self) -> None:
-        """Switch to reset-free mode (training env only); propagates to a :class:`ResetFreeWrapper` below."""
-        self.mode = "reset_free"
-        inner = self.env
-        while isinstance(inner, gym.Wrapper):
-            if hasattr(inner, "enable_reset_free"):
-                inner.enable_reset_free()
-                break
-            inner = inner.env
+    def _on_training_mode(self, training: bool) -> None:
+        """Pass the switch on to a mode-switched wrapper below (a :class:`ResetFreeWrapper`)."""
+        if self._mode_below is not None:
+            self._mode_below.set_training_mode(training)
+
+    @property
+    def task_goal_alpha(self) -> float | None:
+        """alpha of the scheduler (Back-and-Forth, Algorithm 3), None when it has none.
+
+        :class:`~sb3_gcrl.her.TaskRelevantHerReplayBuffer` reads it so that alpha is stated once.
+        """
+        alpha = getattr(self.scheduler, "alpha", None)
+        return None if alpha is None else float(alpha)
 
     # --- task-relevant goals for the replay buffer -----------------------------------------------------------
     def sample_task_goals(self, kind: GoalKind, n: int) -> np.ndarray:
@@ -114,11 +138,11 @@ class GoalCommandWrapper(
     def is_success(self, achieved_goal: np.ndarray, goal: np.ndarray, info: dict[str, Any]) -> bool:
         """Whether ``achieved_goal`` reaches ``goal`` (see ``success_distance``)."""
         if self.success_distance is not None:
-            return bool(np.linalg.norm(achieved_goal - goal) <= self.success_distance)
+            return bool(np.linalg.norm(np.asarray(achieved_goal, np.float64) - goal) <= self.success_distance)
         if self._success_reward is None:
             # the reward the env gives exactly at a goal: constant for sparse rewards, so computed once
-            self._success_reward = float(self._compute_reward(achieved_goal, achieved_goal, info))
-        return bool(float(self._compute_reward(achieved_goal, goal, info)) >= self._success_reward)
+            self._success_reward = scalar_reward(self._compute_reward(achieved_goal, achieved_goal, info))
+        return bool(scalar_reward(self._compute_reward(achieved_goal, goal, info)) >= self._success_reward)
 
     # --- gym API ----------------------------------------------------------------------------------------------
     def reset(
@@ -132,42 +156,55 @@ class GoalCommandWrapper(
         physical = info.get("physical_reset", True)
         if physical and not self.task_goals.declared:
             self.task_goals.record_reset(obs)
-        if self.mode == "episodic":
-            self.goal, self.goal_kind = np.array(obs["desired_goal"], dtype=np.float64), "env"
+        if not self.training:
+            if physical and self._mode_below is None:
+                self._arm_mode_check()
+            self._set_goal(obs["desired_goal"])
+            self.goal_kind = "env"
             return obs, info
         if physical:
             self.scheduler.reset_pending()
+            self.scheduler.observe_task_goal(np.ravel(obs["desired_goal"]))
         self.scheduler.observe(obs["achieved_goal"])
-        self._set_goal(self.scheduler.next_goal(obs, self._rng), obs)
+        self._set_goal(self.scheduler.next_goal(obs, self._rng))
         self.goal_kind = self.scheduler.kind
         self.goal_counts[self.goal_kind] = self.goal_counts.get(self.goal_kind, 0) + 1
         self._reached = False
         return self._command(obs), info
 
-    def _set_goal(self, goal: np.ndarray, obs: dict[str, np.ndarray]) -> None:
-        """Command ``goal`` until the next reset (kept in float64 and, for the observations, in their dtype)."""
-        self.goal = np.asarray(goal, dtype=np.float64).reshape(obs["desired_goal"].shape)
-        self._goal_obs = self.goal.astype(obs["desired_goal"].dtype)
+    def _set_goal(self, goal: Any) -> None:
+        """Command ``goal`` (flat or shaped) until the next reset.
+
+        :attr:`goal` keeps it in float64 in the goal space's shape; the observations, and ``compute_reward``, get it
+        in the env's own representation (its dtype; a Python ``int`` for a ``Discrete`` goal space).
+        """
+        self.goal = np.asarray(goal, dtype=np.float64).reshape(self._goal_shape)
+        if self._discrete_goal:
+            self._goal_obs = int(round(float(self.goal)))
+        else:
+            self._goal_obs = self.goal.astype(self._goal_dtype)
 
     def _command(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         # a new dict: inner wrappers keep references to the observations they returned
         commanded = dict(obs)
-        commanded["desired_goal"] = self._goal_obs.copy()
+        commanded["desired_goal"] = self._goal_obs if self._discrete_goal else self._goal_obs.copy()
         return commanded
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
-        if self.mode == "episodic":
+        if not self.training:
+            if self._mode_check_armed:
+                self._check_mode()
             if "is_success" not in info:
                 info["is_success"] = self.is_success(obs["achieved_goal"], obs["desired_goal"], info)
             return obs, reward, terminated, truncated, info
         # hot path (every training step): one compute_reward call, no other numpy work
         achieved = obs["achieved_goal"]
         self.scheduler.observe(achieved)
-        reward = float(self._compute_reward(achieved, self.goal, info))
+        reward = scalar_reward(self._compute_reward(achieved, self._goal_obs, info))
         if self.success_distance is None:
             if self._success_reward is None:
-                self._success_reward = float(self._compute_reward(achieved, achieved, info))
+                self._success_reward = scalar_reward(self._compute_reward(achieved, achieved, info))
             success = reward >= self._success_reward
         else:
             success = self.is_success(achieved, self.goal, info)  # type: ignore[arg-type]

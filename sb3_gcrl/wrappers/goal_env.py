@@ -1,6 +1,6 @@
 """Goal-env checks shared by the wrappers, and an ``info["is_success"]`` adapter.
 
-Goal envs follow gymnasium-robotics (DESIGN.md contract 1): a Dict observation with ``observation``,
+Goal envs follow gymnasium-robotics: a Dict observation with ``observation``,
 ``achieved_goal`` and ``desired_goal``, a vectorised ``compute_reward(achieved, desired, info)``, and
 ``info["is_success"]`` (the only key SB3/RL-Zoo read for success rates).
 """

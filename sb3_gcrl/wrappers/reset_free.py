@@ -6,32 +6,38 @@ The agent (SB3) still sees finite *segments*: a segment ends with ``truncated=Tr
 semantics SB3 turns into ``info["TimeLimit.truncated"]``, so the value target bootstraps), never with a fake
 terminal, and the next ``reset()`` returns the *current* state instead of resetting.
 
-The wrapper has two modes:
+The wrapper has two modes (:mod:`sb3_gcrl.wrappers.mode`):
 
-* ``"episodic"`` (the default, at construction): every ``reset()`` is physical, episodes last at most
+* evaluation mode (the default, at construction): every ``reset()`` is physical, episodes last at most
   ``eval_horizon`` steps. This is what evaluation and ``rl_zoo3 enjoy`` see. RL-Zoo wraps its eval env with the
   same ``env_wrapper`` as the train env, so the wrapper must be episodic unless told otherwise.
-* ``"reset_free"``: switched on for the *training* env only, by :meth:`enable_reset_free`, which
+* training mode (reset-free): switched on for the *training* env only, by ``set_training_mode(True)``, which
   :class:`sb3_gcrl.callbacks.ResetFreeCallback` calls at the start of ``learn``.
+
+Any gymnasium env can be trained reset-free (EARL's tasks need not be goal envs): this wrapper accepts plain
+envs. What needs a goal env is what MoReFree adds on top, the task-relevant goals rho_0/rho_g* and commanded
+goals (:class:`~sb3_gcrl.wrappers.GoalCommandWrapper`, :class:`~sb3_gcrl.wrappers.GoExploreWrapper`,
+:class:`~sb3_gcrl.her.TaskRelevantHerReplayBuffer`), which refuse other envs.
 """
 
 from __future__ import annotations
 
-from typing import Any, Literal, SupportsFloat
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 from gymnasium.wrappers import TimeLimit
 
-Mode = Literal["episodic", "reset_free"]
+from sb3_gcrl.wrappers.mode import TrainingModeMixin
 
 #: EARL's default interval between hard resets (tabletop, sawyer door, IBC PointUMaze)
 EARL_HARD_RESET_EVERY = 200_000
 
 
-class ResetFreeWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
+class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Physical resets every ``hard_reset_every`` steps; SB3 sees truncated segments in between.
 
-    :param env: the env to train without resets (any gymnasium env; goal envs for the goal wrappers on top).
+    :param env: the env to train without resets: any gymnasium env (a plain env is fine; the goal wrappers on
+        top, which MoReFree needs, require a goal env).
     :param hard_reset_every: env steps between two physical resets (interventions) in reset-free mode.
     :param segment_length: length of the segments SB3 sees in reset-free mode (``None``: segments end only at
         hard resets, or when an outer wrapper truncates, e.g. :class:`GoExploreWrapper` after each Go-Explore).
@@ -60,7 +66,7 @@ class ResetFreeWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.hard_reset_every = int(hard_reset_every)
         self.segment_length = None if segment_length is None else int(segment_length)
         self.eval_horizon = None if eval_horizon is None else int(eval_horizon)
-        self.mode: Mode = "episodic"
+        self._init_training_mode()
         #: physical resets so far (every reset in episodic mode, hard/terminal resets in reset-free mode)
         self.interventions = 0
         #: physical resets caused by a terminal state the agent could not leave
@@ -82,6 +88,7 @@ class ResetFreeWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 self._time_limits.append(inner)
             has_monitor = has_monitor or type(inner).__name__ == "Monitor"
             inner = inner.env
+        self._own_limits = [limit._max_episode_steps for limit in self._time_limits]
         if self.eval_horizon is not None:
             if not self._time_limits and has_monitor:
                 raise ValueError(
@@ -92,19 +99,22 @@ class ResetFreeWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             for limit in self._time_limits:
                 limit._max_episode_steps = self.eval_horizon
 
-    def enable_reset_free(self) -> None:
-        """Switch to reset-free mode (training env only) and set inner time limits to ``hard_reset_every``.
+    def _on_training_mode(self, training: bool) -> None:
+        """Set inner time limits to ``hard_reset_every`` (training) or ``eval_horizon`` (evaluation).
 
-        Inner ``TimeLimit`` wrappers (e.g. PointMaze's 300 steps) would otherwise end the physical episode early;
-        their limit becomes the hard-reset interval so that they coincide with the hard reset.
+        Inner ``TimeLimit`` wrappers (e.g. PointMaze's 300 steps) would otherwise end the physical episode early
+        in training; their limit becomes the hard-reset interval so that they coincide with the hard reset.
         """
-        self.mode = "reset_free"
-        for limit in self._time_limits:
-            limit._max_episode_steps = self.hard_reset_every
+        for limit, own in zip(self._time_limits, self._own_limits):
+            if training:
+                limit._max_episode_steps = self.hard_reset_every
+            else:
+                limit._max_episode_steps = own if self.eval_horizon is None else self.eval_horizon
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
-        if self.mode == "episodic" or self._needs_physical_reset or seed is not None or options:
+        if not self.training or self._needs_physical_reset or seed is not None or options:
             obs, info = self.env.reset(seed=seed, options=options)
+            self._arm_mode_check()
             self.interventions += 1
             self._steps_since_reset = 0
             self._needs_physical_reset = False
@@ -120,7 +130,9 @@ class ResetFreeWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.total_steps += 1
         self._steps_since_reset += 1
         self._segment_steps += 1
-        if self.mode == "episodic":
+        if not self.training:
+            if self._mode_check_armed:
+                self._check_mode()
             if self.eval_horizon is not None and self._segment_steps >= self.eval_horizon:
                 truncated = True
             return obs, reward, terminated, truncated, info

@@ -1,0 +1,136 @@
+"""Training vs evaluation mode of the reset-free and goal-commanding wrappers (thesis Ch. 3 and Ch. 6).
+
+RL-Zoo wraps its evaluation env with the same ``env_wrapper`` as the training env, and evaluation must stay
+episodic (reset to rho_0, the env's own goal from rho_g*). So every wrapper here starts in **evaluation mode**
+and only the training env is switched to **training mode** (reset-free segments, commanded goals,
+post-exploration), by the callback named in the wrapper's :attr:`TrainingModeMixin.switching_callback`
+(:class:`~sb3_gcrl.callbacks.ResetFreeCallback`, :class:`~sb3_gcrl.post_exploration.PostExplorationCallback`).
+
+Forgetting that callback would silently train episodically. The wrapper therefore checks, at the first step
+after each physical reset while it is in evaluation mode that nobody chose, whether it is being stepped by an
+SB3 algorithm's ``collect_rollouts`` (and not by ``evaluate_policy``); if so it warns once, naming the callback.
+Calling ``set_training_mode(False)`` states that episodic training is meant and silences the check. The check
+looks at the Python call stack of the process that steps the env, so it cannot see training through a
+``SubprocVecEnv`` (the worker process runs no SB3 code): there, rely on the callback (``sb3-gcrl train`` and
+``sb3-gcrl compare`` refuse configs without it).
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from typing import Any
+
+import gymnasium as gym
+from stable_baselines3.common.vec_env import VecEnv
+
+
+def stepped_by_sb3_training() -> bool:
+    """Whether the current call comes from an SB3 algorithm collecting training data (not from evaluation).
+
+    :return: True when an SB3 ``collect_rollouts`` frame is found on the call stack before any ``evaluate_policy``.
+    """
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    frame = sys._getframe(1)
+    while frame is not None:
+        name = frame.f_code.co_name
+        if name == "evaluate_policy":
+            return False
+        if name == "collect_rollouts" and isinstance(frame.f_locals.get("self"), BaseAlgorithm):
+            return True
+        frame = frame.f_back  # type: ignore[assignment]
+    return False
+
+
+class TrainingModeMixin:
+    """Evaluation/training mode of a wrapper, switched by a callback for the training env only.
+
+    Subclasses call :meth:`_init_training_mode` in ``__init__``, :meth:`_arm_mode_check` at physical resets and
+    :meth:`_check_mode` at the first evaluation-mode step after them, and may override
+    :meth:`_on_training_mode` to apply the switch.
+    """
+
+    #: dotted path of the callback that switches the training env to training mode (named in errors and warnings)
+    switching_callback = "sb3_gcrl.callbacks.ResetFreeCallback"
+    #: True in training mode, False in evaluation (episodic) mode
+    training: bool
+
+    def _init_training_mode(self, warns: bool = True) -> None:
+        """Start in evaluation mode.
+
+        :param warns: whether this wrapper warns about training without the callback (False when a wrapper
+            below it owns the mode and warns instead).
+        """
+        self.training = False
+        self._mode_chosen = False
+        self._mode_check_armed = warns
+
+    def set_training_mode(self, training: bool) -> None:
+        """Switch between training mode (``True``) and evaluation mode (``False``, episodic).
+
+        The switching callback calls ``set_training_mode(True)`` on the training env at the start of ``learn``.
+        Call ``set_training_mode(False)`` yourself to train episodically on purpose (silences the warning).
+
+        :param training: the mode.
+        """
+        self.training = bool(training)
+        self._mode_chosen = True
+        self._mode_check_armed = False
+        self._on_training_mode(self.training)
+
+    def _on_training_mode(self, training: bool) -> None:  # noqa: B027 (optional hook)
+        """Apply a mode switch (no-op by default)."""
+
+    def _arm_mode_check(self) -> None:
+        """Check the next step (called at physical resets while the mode was never chosen)."""
+        if not self._mode_chosen:
+            self._mode_check_armed = True
+
+    def _check_mode(self) -> None:
+        """Warn once if SB3 trains on this env while it was left in evaluation mode."""
+        self._mode_check_armed = False
+        if self._mode_chosen or not stepped_by_sb3_training():
+            return
+        self._mode_chosen = True  # warn once
+        callback = self.switching_callback.rsplit(".", 1)[-1]
+        warnings.warn(
+            f"{type(self).__name__} is being trained on but was never switched to training mode, so training is "
+            f"plain episodic training: pass callback={callback}() to model.learn (RL-Zoo: list "
+            f"{self.switching_callback} under callback), or call set_training_mode(False) on the env to train "
+            "episodically on purpose.",
+            UserWarning,
+            stacklevel=3,
+        )
+
+
+def find_wrapper(env: gym.Env, wrapper_class: type) -> Any:
+    """The outermost wrapper of ``wrapper_class`` in ``env``'s chain (``env`` itself included), or None.
+
+    :param env: a (wrapped) env.
+    :param wrapper_class: the class looked for.
+    :return: the wrapper, or None.
+    """
+    inner: Any = env
+    while isinstance(inner, gym.Wrapper):
+        if isinstance(inner, wrapper_class):
+            return inner
+        inner = inner.env
+    return None
+
+
+def switch_training_envs(env: VecEnv, callback_path: str, wrap_hint: str) -> None:
+    """Put every env of a training VecEnv in training mode, after checking it is meant for this callback.
+
+    :param env: the training VecEnv.
+    :param callback_path: dotted path of the calling callback.
+    :param wrap_hint: what to wrap the env in, for the error message.
+    :raises TypeError: when the env has no mode-switched wrapper, or one switched by another callback.
+    """
+    callback = callback_path.rsplit(".", 1)[-1]
+    if not env.has_attr("switching_callback"):
+        raise TypeError(f"{callback}: the training env has no mode-switched wrapper; wrap it in {wrap_hint}")
+    wanted = set(env.get_attr("switching_callback"))
+    if wanted != {callback_path}:
+        raise TypeError(f"{callback}: the training env's wrappers are switched by {sorted(wanted)}; use that callback")
+    env.env_method("set_training_mode", True)
