@@ -93,8 +93,8 @@ class InterruptAfterFirstRun:
     def on_progress(self, spec, steps):
         self.events.on_progress(spec, steps)
 
-    def on_end(self, spec, status):
-        self.events.on_end(spec, status)
+    def on_end(self, spec, status, **details):
+        self.events.on_end(spec, status, **details)
         raise KeyboardInterrupt
 
 
@@ -157,6 +157,16 @@ def test_tiny_comparison_end_to_end(tmp_path, monkeypatch, capsys):
     assert finished_runs(output) == before
     assert "4 runs (4 resumed, 0 failed)" in capsys.readouterr().out
 
+    # 4b. a run.json holding a list (not a record) does not crash the resume: that run is redone, and it is said
+    broken = output / "runs" / "Pendulum-v1" / "tiny_td3" / "seed_1"
+    (broken / "run.json").write_text("[1, 2]")
+    assert compare_main([*argv, "--eval-episodes", "1", "-o", str(output), "--no-progress"]) == 0
+    out, err = capsys.readouterr()
+    assert "4 runs (3 resumed, 0 failed)" in out and f"plot: {output / 'curves.png'}" in out
+    assert f"{broken / 'run.json'} holds a JSON list" in err and "redone" in err
+    assert read_run_record(broken)["status"] == "finished"
+    before = finished_runs(output)
+
     # 5. a worker killed by a signal is recorded as failed; the other runs are kept and the exit code says so
     (tmp_path / "killing_wrapper.py").write_text(KILLING_WRAPPER)
     monkeypatch.setenv("PYTHONPATH", str(tmp_path))
@@ -166,6 +176,9 @@ def test_tiny_comparison_end_to_end(tmp_path, monkeypatch, capsys):
     assert record["status"] == "failed" and "killed by signal 9" in record["error"]
     assert finished_runs(output) == before
     assert "killed / seed 0" in (output / "report.md").read_text()
+    err = capsys.readouterr().err  # the console names the error and the log, not just "see its train.log"
+    assert "run failed: Pendulum-v1 / killed / seed 0" in err and "killed by signal 9" in err
+    assert f"log: {output / 'runs' / 'Pendulum-v1' / 'killed' / 'seed_0' / 'train.log'}" in err
 
 
 def test_changed_settings_are_not_silently_reused(tmp_path):
@@ -308,7 +321,7 @@ def test_run_result_round_trip_and_changed_spec_detection(tmp_path):
 def test_finished_run_with_tuples_in_its_spec_is_recognised_on_resume(tmp_path):
     """run.json stores tuples as lists; resuming must still see the run as finished, not as changed settings."""
     spec = make_spec(env_kwargs={"goal": (1.0, 0.5)}, hyperparams={"policy_kwargs": {"net_arch": (8, 8)}})
-    write_run_result(tmp_path, RunResult(spec, "finished", [{"timesteps": 0}]))
+    write_run_result(tmp_path, RunResult(spec, "finished", [{"timesteps": 0, "mean_return": 0.0}]))
     assert is_finished(tmp_path, spec)
 
 
@@ -409,7 +422,7 @@ def test_env_kwargs_reach_the_env_constructor(tmp_path):
 
 def test_run_json_of_an_older_version_without_new_fields_still_counts_as_finished(tmp_path):
     spec = make_spec()
-    write_run_result(tmp_path, RunResult(spec, "finished"))
+    write_run_result(tmp_path, RunResult(spec, "finished", [{"timesteps": 0, "mean_return": 0.0}]))
     record = json.loads((tmp_path / "run.json").read_text())
     del record["spec"]["env_kwargs"]  # a field added later, at its default value
     (tmp_path / "run.json").write_text(json.dumps(record))
@@ -444,3 +457,185 @@ def test_goal_env_runs_keep_visited_goals_and_get_visitation_heatmaps(tmp_path):
     write_outputs(output, summary, "goal env", "", 1.0)
     assert (output / "visitation_GCRL-PointUMazeGoal-v0.png").stat().st_size > 0
     assert "visitation_GCRL-PointUMazeGoal-v0.png" in (output / "report.md").read_text()
+
+
+def tiny_spec(tmp_path: Path) -> RunSpec:
+    configs = write_configs(tmp_path / "configs")
+    return plan_runs([parse_method(f"sac:{configs['sac']}")], ["Pendulum-v1"], [0], 200, 100, 1, {}, (), tmp_path)[0]
+
+
+def write_finished_run(output: Path, spec: RunSpec) -> Path:
+    run_dir = output / "runs" / spec.relative_dir
+    row = {"timesteps": 0, "num_timesteps": 0, "mean_return": -1.0, "std_return": 0.0, "mean_length": 200}
+    write_run_result(run_dir, RunResult(spec, "finished", [row], wall_time_s=1.0))
+    return run_dir
+
+
+@pytest.mark.parametrize(
+    ("content", "problem"),
+    [("[1, 2]", "holds a JSON list"), ('"finished"', "holds a JSON str"), ("{not json", "is not valid JSON"),
+     ('{"status": "done"}', "has status 'done'"), ('{"status": "finished", "spec": []}', "'spec' that is not")],
+)  # fmt: skip
+def test_unusable_run_json_counts_as_unfinished_and_says_why(tmp_path, content, problem):
+    spec = tiny_spec(tmp_path)
+    run_dir = write_finished_run(tmp_path / "out", spec)
+    assert is_finished(run_dir, spec)
+    (run_dir / "run.json").write_text(content)
+    notes: list[str] = []
+    assert not is_finished(run_dir, spec, notes)
+    assert len(notes) == 1 and str(run_dir / "run.json") in notes[0] and problem in notes[0]
+    summary = summarize(tmp_path / "out", [spec])  # the report lists the run instead of crashing
+    assert len(summary.failed) == 1 and problem in summary.failed[0][1]
+
+
+@pytest.mark.parametrize(
+    ("content", "problem"),
+    [("", "cannot be parsed as CSV"), ("timesteps,mean_return\n", "no evaluation rows"),
+     ("step,return\n0,1\n", "lacks the column(s) ['timesteps', 'mean_return']"),
+     ("timesteps,mean_return\n0,1.0\n100,abc\n", "column 'mean_return' holds non-numeric values (row 2: 'abc')"),
+     ("timesteps,mean_return,success_rate\n0,1,yes\n", "column 'success_rate' holds non-numeric"),
+     ("timesteps,mean_return\n0,\n", "column 'mean_return' has empty values (row 1)")],
+)  # fmt: skip
+def test_unusable_evaluations_csv_is_named_with_what_is_wrong(tmp_path, content, problem):
+    spec = tiny_spec(tmp_path)
+    run_dir = write_finished_run(tmp_path / "out", spec)
+    (run_dir / "evaluations.csv").write_text(content)
+    summary = summarize(tmp_path / "out", [spec])
+    assert len(summary.failed) == 1
+    error = summary.failed[0][1]
+    assert str(run_dir / "evaluations.csv") in error and problem in error
+    notes: list[str] = []
+    assert not is_finished(run_dir, spec, notes)  # redone on resume
+    assert problem in notes[0]
+
+
+def test_a_second_compare_on_a_folder_in_use_refuses_and_names_the_pid(tmp_path, capsys):
+    import os
+
+    from sb3_gcrl.compare.storage import OutputInUseError, lock_output
+
+    configs = write_configs(tmp_path / "configs")
+    output = tmp_path / "out"
+    with lock_output(output) as lock:
+        assert lock.read_text() == f"{os.getpid()}\n"
+        with pytest.raises(OutputInUseError, match=rf"process {os.getpid()} holds .*compare.lock.*another --output"):
+            compare([f"sac:{configs['sac']}"], ["Pendulum-v1"], seeds=[0], output=output, progress=False)
+        argv = ["-m", f"sac:{configs['sac']}", "-e", "Pendulum-v1", "--seeds", "0", "-o", str(output)]
+        assert compare_main(argv) == EXIT_USAGE
+        assert "is in use by another sb3-gcrl compare" in capsys.readouterr().err
+    assert not (output / "runs").exists() and not lock.exists()
+
+
+def test_a_stale_lock_of_a_dead_process_is_taken_over(tmp_path, capsys):
+    import os
+    import subprocess
+    import sys
+
+    from sb3_gcrl.compare.storage import lock_output
+
+    dead = subprocess.Popen([sys.executable, "-c", ""])
+    dead.wait()
+    (tmp_path / "compare.lock").write_text(f"{dead.pid}\n")
+    with lock_output(tmp_path) as lock:
+        assert lock.read_text() == f"{os.getpid()}\n"
+    assert f"taking over the lock of process {dead.pid}" in capsys.readouterr().err
+
+
+def _process_gone(pid: int) -> bool:
+    """True when ``pid`` has exited (a zombie left unreaped by its new parent counts as gone)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return True
+    return stat.rsplit(")", 1)[1].split()[0] in ("Z", "X")
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc to follow the orphan")
+def test_workers_die_with_their_sigkilled_parent(tmp_path):
+    """A worker started like the local backend starts it must not outlive a SIGKILLed compare process."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from sb3_gcrl.compare.worker import PARENT_PID_ENV, SPEC_FILE
+
+    configs = write_configs(tmp_path / "configs")
+    spec = plan_runs([parse_method(f"sac:{configs['sac']}")], ["Pendulum-v1"], [0], 10**7, 10**6, 1, {}, (), tmp_path)
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / SPEC_FILE).write_text(json.dumps(spec[0].to_dict()))
+    parent_code = (
+        "import os, subprocess, sys, time\n"
+        f"environment = {{**os.environ, {PARENT_PID_ENV!r}: str(os.getpid())}}\n"
+        f"worker = subprocess.Popen([sys.executable, '-m', 'sb3_gcrl.compare.worker', {str(run_dir)!r}], "
+        "env=environment, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)\n"
+        "print(worker.pid, flush=True)\n"
+        "time.sleep(600)\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", parent_code], stdout=subprocess.PIPE, text=True)
+    worker_pid = int(parent.stdout.readline())
+    try:
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        deadline = time.monotonic() + 120  # the worker notices once its imports are done (seconds, more under load)
+        while not _process_gone(worker_pid) and time.monotonic() < deadline:
+            time.sleep(0.5)
+        assert _process_gone(worker_pid), "the worker outlived its SIGKILLed parent"
+        assert not (run_dir / "run.json").exists()
+    finally:
+        if not _process_gone(worker_pid):
+            os.kill(worker_pid, signal.SIGKILL)
+
+
+def test_hyperparameter_typos_are_refused_before_any_run_with_close_matches(tmp_path, capsys):
+    configs = write_configs(tmp_path / "configs")
+    output = tmp_path / "out"
+    with pytest.raises(
+        ValueError, match=r"'lerning_rate' \(did you mean 'learning_rate', 'learning_starts'\?\) from --hyperparams"
+    ):
+        compare([f"sac:{configs['sac']}"], ["Pendulum-v1"], seeds=[0], hyperparams={"lerning_rate": 0.1}, output=output)
+    typo = tmp_path / "typo.yml"
+    typo.write_text(TINY_CONFIG.replace("buffer_size", "bufer_size"))
+    with pytest.raises(
+        ValueError, match=rf"SAC\): 'bufer_size' \(did you mean 'buffer_size'.*\) from {typo} \(section Pendulum-v1\)"
+    ):
+        compare([f"sac:{typo}"], ["Pendulum-v1"], seeds=[0], output=output)
+    with pytest.raises(ValueError, match=r"'seed' \(from --hyperparams\) is set by the run itself"):
+        compare([f"sac:{configs['sac']}"], ["Pendulum-v1"], seeds=[0], hyperparams={"seed": 3}, output=output)
+    argv = ["-m", f"sac:{configs['sac']}", "-e", "Pendulum-v1", "--hyperparams", "lerning_rate:0.1", "-o", str(output)]
+    assert compare_main(argv) == EXIT_USAGE
+    assert "did you mean 'learning_rate'" in capsys.readouterr().err
+    assert not output.exists()  # refused before anything was written or run
+
+
+def test_zoo_keys_and_inherited_constructor_arguments_pass_the_hyperparameter_check():
+    from sb3_gcrl.compare.run import prepare_process
+    from sb3_gcrl.compare.runner import check_hyperparameters
+
+    prepare_process(single_thread=False)
+    check_hyperparameters(
+        "td3", {"n_timesteps": 1, "noise_type": "normal", "noise_std": 0.1, "policy": "MlpPolicy"}, "x"
+    )
+    check_hyperparameters("tabular_q", {"learning_rate": 0.1, "gamma": 0.9}, "x")  # via **kwargs to its base
+    with pytest.raises(ValueError, match=r"'gama' \(did you mean 'gamma'"):
+        check_hyperparameters("tabular_q", {"gama": 0.9}, "x")
+
+
+def test_cli_prints_failures_and_announces_only_the_plot_it_wrote(tmp_path, monkeypatch, capsys):
+    """No run finished: no curves.png, so the console must not point to one; failures show error and log."""
+    import sb3_gcrl.compare.runner as runner
+    from sb3_gcrl.compare.report import Summary
+    from sb3_gcrl.compare.runner import ComparisonResult
+
+    spec = tiny_spec(tmp_path)
+    log = tmp_path / "out" / "runs" / "train.log"
+    error = "Traceback (most recent call last):\n  File 'x.py', line 1\nValueError: learning_rate is not a schedule"
+    summary = Summary(pd.DataFrame(), pd.DataFrame(), pd.DataFrame(), {}, [(spec, error, log)], "(none)", [], {})
+    result = ComparisonResult(tmp_path / "out", [spec], 0, summary, 1.0, files=[tmp_path / "out" / "report.md"])
+    monkeypatch.setattr(runner, "compare", lambda *args, **kwargs: result)
+    assert compare_main(["-m", "sac", "-e", "Pendulum-v1", "-o", str(tmp_path / "out")]) == 1
+    out, err = capsys.readouterr()
+    assert "curves.png" not in out and "no plot" in out
+    assert "ValueError: learning_rate is not a schedule" in err and f"log: {log}" in err

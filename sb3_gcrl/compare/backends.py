@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run
 from sb3_gcrl.compare.storage import LOG_FILE, read_run_record, reset_run_dir, write_run_result
-from sb3_gcrl.compare.worker import SPEC_FILE, read_progress
+from sb3_gcrl.compare.worker import PARENT_PID_ENV, SPEC_FILE, read_progress
 
 #: one job = a run and its folder
 Job = tuple[RunSpec, Path]
@@ -35,7 +35,8 @@ class RunEvents(Protocol):
 
     def on_progress(self, spec: RunSpec, steps: int) -> None: ...
 
-    def on_end(self, spec: RunSpec, status: str) -> None: ...
+    def on_end(self, spec: RunSpec, status: str, error: str = "", log_path: Path | None = None) -> None:
+        """A run ended: ``status`` ``"finished"`` or ``"failed"`` (then ``error`` and the run's ``log_path``)."""
 
 
 def available_cores() -> int:
@@ -63,7 +64,8 @@ class LocalProcessBackend(Backend):
     A process per run isolates runs completely: a crash (even a segfault or an out-of-memory kill) is recorded
     as a failed run and the other runs go on. Workers run in their own session, so Ctrl-C reaches only this
     process, which then stops the runs in flight; their output goes to each run's ``train.log``, and they get
-    one thread for torch and OpenMP (faiss, MKL).
+    one thread for torch and OpenMP (faiss, MKL). Workers die with this process, even when it is SIGKILLed
+    (:func:`~sb3_gcrl.compare.worker.die_with_parent`).
 
     :param n_workers: parallel runs; default: the number of available cores.
     :param poll_interval: seconds between checks of the workers.
@@ -78,7 +80,13 @@ class LocalProcessBackend(Backend):
     def _start(self, spec: RunSpec, run_dir: Path) -> subprocess.Popen:
         reset_run_dir(run_dir)
         (run_dir / SPEC_FILE).write_text(json.dumps(spec.to_dict(), indent=2))
-        environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+        environment = {
+            **os.environ,
+            "OMP_NUM_THREADS": "1",
+            "MKL_NUM_THREADS": "1",
+            "PYTHONUNBUFFERED": "1",
+            PARENT_PID_ENV: str(os.getpid()),
+        }
         with open(run_dir / LOG_FILE, "wb") as log:
             return subprocess.Popen(
                 [sys.executable, "-m", "sb3_gcrl.compare.worker", str(run_dir)],
@@ -107,7 +115,8 @@ class LocalProcessBackend(Backend):
                     if process.poll() is None:
                         continue
                     del running[run_dir]
-                    events.on_end(spec, self._final_status(process.returncode, spec, run_dir))
+                    status, error = self._final_status(process.returncode, spec, run_dir)
+                    events.on_end(spec, status, error=error, log_path=run_dir / LOG_FILE)
         finally:
             for process, _, _ in running.values():  # interrupted: stop the runs in flight
                 process.terminate()
@@ -118,15 +127,16 @@ class LocalProcessBackend(Backend):
                     process.kill()
 
     @staticmethod
-    def _final_status(returncode: int, spec: RunSpec, run_dir: Path) -> str:
+    def _final_status(returncode: int, spec: RunSpec, run_dir: Path) -> tuple[str, str]:
+        """Status and error of an ended worker's run (a worker that wrote no result is recorded as failed)."""
         record = read_run_record(run_dir)
         if record is not None:
-            return str(record["status"])
+            return str(record["status"]), str(record.get("error") or "")
         # the worker died before writing its result (segfault, out-of-memory kill, import error...)
         how = f"killed by signal {-returncode}" if returncode < 0 else f"exit code {returncode}"
         error = f"worker process ended without a result ({how}); see {run_dir / LOG_FILE}"
         write_run_result(run_dir, RunResult(spec, "failed", error=error))
-        return "failed"
+        return "failed", error
 
 
 def _ray_worker(spec_data: dict[str, Any], run_dir: str, progress: Any, index: int) -> RunResult:
@@ -213,7 +223,7 @@ class RayBackend(Backend):
                     except ray.exceptions.RayError as error:  # worker died, task cancelled, ...
                         result = RunResult(spec, "failed", error=f"Ray task failed: {error!r}")
                     write_run_result(run_dir, result)
-                    events.on_end(spec, result.status)
+                    events.on_end(spec, result.status, error=result.error, log_path=run_dir / LOG_FILE)
         finally:
             for ref in in_flight:
                 with contextlib.suppress(Exception):

@@ -135,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     seeds = pick(args.seeds or (list(range(args.n_seeds)) if args.n_seeds is not None else None), "seeds", (0, 1, 2))
     output = args.output or Path("results") / (preset_name or "comparison")
 
-    from sb3_gcrl.compare.runner import compare
+    from sb3_gcrl.compare.runner import compare, describe_failure
+    from sb3_gcrl.compare.storage import OutputInUseError
 
     command = "sb3-gcrl compare" + ("" if not argv else " " + shlex.join(argv))
     try:
@@ -168,15 +169,21 @@ def main(argv: list[str] | None = None) -> int:
             f"\ninterrupted: finished runs are kept in {output}; run the same command again to resume", file=sys.stderr
         )
         return EXIT_INTERRUPTED
-    except (ValueError, FileExistsError, ImportError) as error:
+    except (ValueError, FileExistsError, ImportError, OutputInUseError) as error:
         print(f"sb3-gcrl compare: error: {error}", file=sys.stderr)
         return EXIT_USAGE
 
     summary = result.summary
     print(summary.table)
+    for spec, error, log_path in summary.failed:
+        print(describe_failure(spec, error, log_path), file=sys.stderr)
+    plot = result.output / "curves.png"
+    where = f"report: {result.output / 'report.md'}" + (
+        f", plot: {plot}" if plot in result.files else " (no plot: no run finished)"
+    )
     print(
         f"\n{len(result.specs)} runs ({result.n_skipped} resumed, {len(summary.failed)} failed) in "
-        f"{result.wall_time_s:.0f} s; report: {result.output / 'report.md'}, plot: {result.output / 'curves.png'}"
+        f"{result.wall_time_s:.0f} s; {where}"
     )
     return EXIT_RUNS_FAILED if summary.failed else EXIT_OK
 

@@ -22,7 +22,14 @@ from sb3_gcrl.analysis.plots import (
 )
 from sb3_gcrl.analysis.statistics import aggregate_scores, probability_of_improvement, run_scores, visitation_entropy
 from sb3_gcrl.compare.run import RunSpec
-from sb3_gcrl.compare.storage import EVALUATIONS_FILE, LOG_FILE, VISITED_FILE, atomic_write_text, read_run_record
+from sb3_gcrl.compare.storage import (
+    EVALUATIONS_FILE,
+    LOG_FILE,
+    VISITED_FILE,
+    atomic_write_text,
+    evaluations_problem,
+    load_run_record,
+)
 
 #: default level of ``success_rate`` that counts as solved (for the "solved" columns)
 SUCCESS_THRESHOLD = 0.9
@@ -36,7 +43,7 @@ class Summary:
     :param scores: per-run final score, AUC, step solved.
     :param summary: per (env, method) aggregates (see :func:`~sb3_gcrl.analysis.statistics.aggregate_scores`).
     :param metrics: metric used per env.
-    :param failed: ``(spec, error, log path)`` of the runs that failed.
+    :param failed: ``(spec, error, log path)`` of the runs that failed, never ran, or left unusable files.
     :param run_wall_times: wall time (s) of every finished run, as its worker measured it.
     :param run_dirs: ``(env, method) -> folders`` of the finished runs.
     :param table: the printed Markdown table.
@@ -118,14 +125,19 @@ def summarize(
     finished, failed, wall_times, run_dirs = [], [], [], {}
     for spec in specs:
         run_dir = output / "runs" / spec.relative_dir
-        record = read_run_record(run_dir)
-        if record is not None and record["status"] == "finished":
-            finished.append((spec.env_id, spec.method, spec.seed, run_dir / EVALUATIONS_FILE))
-            wall_times.append(float(record["wall_time_s"]))
-            run_dirs.setdefault((spec.env_id, spec.method), []).append(run_dir)
+        record, problem = load_run_record(run_dir)
+        if problem is None and record is not None and record["status"] == "finished":
+            problem = evaluations_problem(run_dir / EVALUATIONS_FILE)
+            if problem is None:
+                finished.append((spec.env_id, spec.method, spec.seed, run_dir / EVALUATIONS_FILE))
+                wall_times.append(float(record["wall_time_s"]))
+                run_dirs.setdefault((spec.env_id, spec.method), []).append(run_dir)
+                continue
+        if problem is not None:
+            error = f"unusable result: {problem} (run the same command again to redo the run)"
         else:
-            error = "never ran (interrupted?)" if record is None else record.get("error", "")
-            failed.append((spec, error, run_dir / LOG_FILE))
+            error = "never ran (interrupted?)" if record is None else str(record.get("error") or "")
+        failed.append((spec, error, run_dir / LOG_FILE))
     curves = load_curves(finished)
     planned = pd.Series([(s.env_id, s.method) for s in specs]).value_counts().to_dict()
     scores, summaries, metrics = [], [], {}
@@ -158,7 +170,7 @@ def _in_order(table: pd.DataFrame, order: dict[tuple[str, str], int]) -> pd.Data
     return table.iloc[sorted(range(len(table)), key=rank.__getitem__)].reset_index(drop=True)
 
 
-def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, wall_time_s: float) -> None:
+def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, wall_time_s: float) -> list[Path]:
     """Write ``curves.csv``, ``scores.csv``, ``summary.csv``, ``curves.png`` and ``report.md`` into ``output``.
 
     :param output: comparison folder.
@@ -166,7 +178,9 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
     :param title: report title.
     :param settings_md: Markdown describing the settings (methods, configs, budgets).
     :param wall_time_s: wall time of this invocation.
+    :return: the files written (``curves.png`` and the other figures only when there were finished runs).
     """
+    written = [output / name for name in ("curves.csv", "scores.csv", "summary.csv")]
     atomic_write_text(output / "curves.csv", summary.curves.to_csv(index=False))
     atomic_write_text(output / "scores.csv", summary.scores.to_csv(index=False))
     atomic_write_text(output / "summary.csv", summary.summary.to_csv(index=False))
@@ -183,6 +197,7 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
         )
         # the figure gets a short title (the report's may be a sentence); panels are titled by env
         plot_learning_curves(aggregated, summary.metrics, path=output / "curves.png", title=" vs ".join(methods))
+        written.append(output / "curves.png")
         figure_md = "![learning curves](curves.png)\n" + _memory_choice_figures(output, summary)
         figure_md += _visitation_figures(output, summary)
     lines = [
@@ -218,6 +233,7 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
         )
     lines.append(f"Wall time of this invocation (resumed runs cost nothing): {wall_time_s:.0f} s.")
     atomic_write_text(output / "report.md", "\n".join(lines) + "\n")
+    return [*written, output / "report.md"]
 
 
 def _memory_choice_figures(output: Path, summary: Summary) -> str:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import difflib
+import inspect
 import json
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -15,11 +17,31 @@ from sb3_gcrl.compare.backends import Backend, Job, LocalProcessBackend, RayBack
 from sb3_gcrl.compare.methods import Method, check_env_id, file_digest, parse_method
 from sb3_gcrl.compare.report import Summary, summarize, write_outputs
 from sb3_gcrl.compare.run import RunSpec, prepare_process
-from sb3_gcrl.compare.storage import atomic_write_text, is_finished
+from sb3_gcrl.compare.storage import atomic_write_text, is_finished, lock_output
 from sb3_gcrl.zoo_config import check_mode_switching_callbacks, zoo_config_section
 
 #: evaluations per run when ``eval_freq`` is not given
 DEFAULT_N_EVALUATIONS = 20
+#: config keys RL-Zoo's ``ExperimentManager`` consumes itself instead of passing them to the algorithm
+ZOO_KEYS = frozenset(
+    {
+        "n_timesteps",
+        "n_envs",
+        "normalize",
+        "env_wrapper",
+        "vec_env_wrapper",
+        "frame_stack",
+        "callback",
+        "monitor_kwargs",
+        "env_kwargs",
+        "noise_type",
+        "noise_std",
+    }
+)
+#: constructor arguments that the run itself sets (RL-Zoo passes them), so a config may not
+RUN_SET_ARGUMENTS = frozenset({"env", "seed", "verbose", "device", "tensorboard_log"})
+#: lines of a failed run's error printed on the console
+ERROR_LINES_SHOWN = 3
 
 
 @dataclass
@@ -31,6 +53,7 @@ class ComparisonResult:
     :param n_skipped: runs already finished before this invocation (resumed).
     :param summary: tables and failures (see :class:`~sb3_gcrl.compare.report.Summary`).
     :param wall_time_s: wall time of this invocation.
+    :param files: the analysis files written (``curves.png`` only when some run finished).
     """
 
     output: Path
@@ -38,6 +61,22 @@ class ComparisonResult:
     n_skipped: int
     summary: Summary
     wall_time_s: float
+    files: list[Path] = field(default_factory=list)
+
+
+def error_excerpt(error: str, n_lines: int = ERROR_LINES_SHOWN) -> list[str]:
+    """The last ``n_lines`` non-empty lines of a run's error (a traceback's last line names the exception)."""
+    lines = [line.rstrip() for line in error.strip().splitlines() if line.strip()]
+    return lines[-n_lines:] or ["unknown error"]
+
+
+def describe_failure(spec: RunSpec, error: str, log_path: Path | None) -> str:
+    """Console text for a failed run: which run, the error's last lines, and its log."""
+    lines = [f"run failed: {spec.env_id} / {spec.method} / seed {spec.seed}"]
+    lines += [f"    {line}" for line in error_excerpt(error)]
+    if log_path is not None:
+        lines.append(f"    log: {log_path}")
+    return "\n".join(lines)
 
 
 class ProgressDisplay:
@@ -70,14 +109,13 @@ class ProgressDisplay:
     def on_progress(self, spec: RunSpec, steps: int) -> None:
         self.bar.update(steps)
 
-    def on_end(self, spec: RunSpec, status: str) -> None:
+    def on_end(self, spec: RunSpec, status: str, error: str = "", log_path: Path | None = None) -> None:
         self.running -= 1
         if status == "finished":
             self.finished += 1
         else:
             self.failed += 1
-            message = f"run failed: {spec.env_id} / {spec.method} / seed {spec.seed} (see its train.log)"
-            self.bar.write(message, file=sys.stderr)
+            self.bar.write(describe_failure(spec, error, log_path), file=sys.stderr)
         self._refresh()
 
     def close(self) -> None:
@@ -90,6 +128,56 @@ def _config_budget(config: Path, env_id: str) -> int:
     if "n_timesteps" not in section:
         raise ValueError(f"{config} gives no n_timesteps for {env_id}: pass a budget (--n-timesteps)")
     return int(float(section["n_timesteps"]))
+
+
+def constructor_arguments(algo_class: type) -> set[str] | None:
+    """Keyword arguments ``algo_class(...)`` accepts: its ``__init__``'s, and where that takes ``**kwargs``
+    (handed to ``super().__init__``), those of the base classes' ``__init__`` too; None when unbounded."""
+    names: set[str] = set()
+    for cls in algo_class.__mro__:
+        if "__init__" not in vars(cls) or cls is object:
+            continue
+        parameters = inspect.signature(vars(cls)["__init__"]).parameters.values()
+        names |= {p.name for p in parameters if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)} - {"self"}
+        if not any(p.kind is p.VAR_KEYWORD for p in parameters):
+            return names
+    return None
+
+
+def check_hyperparameters(algo: str, section: dict[str, Any], where: str, overrides: Sequence[str] = ()) -> None:
+    """Raise before any run starts when a hyperparameter is not an argument of the algorithm's constructor.
+
+    Keys that RL-Zoo consumes itself (:data:`ZOO_KEYS`) are allowed; an algorithm whose ``**kwargs`` reach no
+    base-class constructor without ``**kwargs`` is not checked.
+
+    :param algo: key of ``rl_zoo3.utils.ALGOS`` (our algorithms registered).
+    :param section: the hyperparameters a run would get (config section + overrides).
+    :param where: where the config's come from (named in the message).
+    :param overrides: keys given as overrides (``--hyperparams``), named as such in the message.
+    :raises ValueError: naming each unknown key, its close matches and where it comes from.
+    """
+    from rl_zoo3.utils import ALGOS
+
+    algo_class = ALGOS[algo]
+    arguments = constructor_arguments(algo_class)
+    if arguments is None:
+        return
+    public = sorted(key for key in arguments - RUN_SET_ARGUMENTS if not key.startswith("_"))
+    accepted = (arguments - RUN_SET_ARGUMENTS) | ZOO_KEYS
+    problems = []
+    for key in sorted(set(section) - accepted):
+        origin = "--hyperparams" if key in overrides else where
+        if key in RUN_SET_ARGUMENTS:
+            problems.append(f"{key!r} (from {origin}) is set by the run itself (seed: --seeds; env: --envs)")
+            continue
+        close = difflib.get_close_matches(key, public + sorted(ZOO_KEYS), n=3)
+        hint = f" (did you mean {', '.join(repr(c) for c in close)}?)" if close else ""
+        problems.append(f"{key!r}{hint} from {origin}")
+    if problems:
+        raise ValueError(
+            f"Unknown hyperparameter(s) for {algo} ({algo_class.__name__}): {'; '.join(problems)}. "
+            f"{algo_class.__name__} takes: {public}; RL-Zoo also reads: {sorted(ZOO_KEYS)}."
+        )
 
 
 def make_backend(backend: Backend | str, n_workers: int | None = None, ray_address: str | None = None) -> Backend:
@@ -123,7 +211,8 @@ def plan_runs(
 ) -> list[RunSpec]:
     """Every run (env-major, then method, then seed), with its config resolved; raises before anything runs.
 
-    :raises ValueError: a method has no hyperparameters for an env (the message lists what it covers).
+    :raises ValueError: a method has no hyperparameters for an env (the message lists what it covers), or a
+        hyperparameter (config or override) is not an argument of the algorithm (named with close matches).
     """
     specs = []
     for env_id in envs:
@@ -131,6 +220,7 @@ def plan_runs(
             config = method.config_for(env_id, config_dir)
             section = {**(zoo_config_section(config, env_id) or {}), **hyperparams}
             check_mode_switching_callbacks(section, f"{config} ({env_id})")
+            check_hyperparameters(method.algo, section, f"{config} (section {env_id})", list(hyperparams))
             budget = n_timesteps if n_timesteps is not None else _config_budget(config, env_id)
             frequency = eval_freq if eval_freq is not None else max(1, budget // DEFAULT_N_EVALUATIONS)
             specs.extend(
@@ -258,35 +348,40 @@ def compare(
     )  # fmt: skip
 
     output = Path(output)
-    jobs: list[Job] = []
-    for spec in specs:
-        run_dir = output / "runs" / spec.relative_dir
-        try:
-            if is_finished(run_dir, spec):
-                continue
-        except FileExistsError:
-            if not overwrite:
-                raise
-        jobs.append((spec, run_dir))
-    n_skipped = len(specs) - len(jobs)
-    # seed-major order: every method gets its first runs early (balanced partial results if interrupted, and
-    # slow and fast methods interleave instead of the slowest running alone at the end)
-    jobs.sort(key=lambda job: job[0].seed)
-    backend = make_backend(backend, n_workers, ray_address)
-    settings = {"command": command, "specs": [spec.to_dict() for spec in specs]}
-    atomic_write_text(output / "comparison.json", json.dumps(settings, indent=2) + "\n")
-    if n_skipped and progress:
-        print(f"{n_skipped} of {len(specs)} runs already finished in {output}: skipped", file=sys.stderr)
+    # one compare per folder at a time: a second one would race this one's workers (its lock names our pid)
+    with lock_output(output):
+        jobs: list[Job] = []
+        notes: list[str] = []
+        for spec in specs:
+            run_dir = output / "runs" / spec.relative_dir
+            try:
+                if is_finished(run_dir, spec, notes):
+                    continue
+            except FileExistsError:
+                if not overwrite:
+                    raise
+            jobs.append((spec, run_dir))
+        for note in notes:  # said even without a progress bar: these runs are redone
+            print(f"{note}: the run counts as unfinished and is redone", file=sys.stderr)
+        n_skipped = len(specs) - len(jobs)
+        # seed-major order: every method gets its first runs early (balanced partial results if interrupted, and
+        # slow and fast methods interleave instead of the slowest running alone at the end)
+        jobs.sort(key=lambda job: job[0].seed)
+        backend = make_backend(backend, n_workers, ray_address)
+        settings = {"command": command, "specs": [spec.to_dict() for spec in specs]}
+        atomic_write_text(output / "comparison.json", json.dumps(settings, indent=2) + "\n")
+        if n_skipped and progress:
+            print(f"{n_skipped} of {len(specs)} runs already finished in {output}: skipped", file=sys.stderr)
 
-    if jobs:
-        display = ProgressDisplay(sum(spec.n_timesteps for spec, _ in jobs), len(jobs), enabled=progress)
-        try:
-            backend.run(jobs, display)
-        finally:
-            display.close()
+        if jobs:
+            display = ProgressDisplay(sum(spec.n_timesteps for spec, _ in jobs), len(jobs), enabled=progress)
+            try:
+                backend.run(jobs, display)
+            finally:
+                display.close()
 
-    summary = summarize(output, specs, final_window=final_window, solve_threshold=solve_threshold, metric=metric)
-    title = title or f"{' vs '.join(labels)} on {', '.join(envs)}"
-    wall_time = time.perf_counter() - start
-    write_outputs(output, summary, title, _settings_markdown(specs, backend, command), wall_time)
-    return ComparisonResult(output, specs, n_skipped, summary, wall_time)
+        summary = summarize(output, specs, final_window=final_window, solve_threshold=solve_threshold, metric=metric)
+        title = title or f"{' vs '.join(labels)} on {', '.join(envs)}"
+        wall_time = time.perf_counter() - start
+        files = write_outputs(output, summary, title, _settings_markdown(specs, backend, command), wall_time)
+        return ComparisonResult(output, specs, n_skipped, summary, wall_time, files)

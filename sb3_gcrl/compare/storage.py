@@ -3,6 +3,7 @@
 ::
 
     OUT/
+      compare.lock               pid of the compare process using the folder (held with flock while it runs)
       comparison.json            settings of the last invocation
       runs/ENV/METHOD/seed_S/
         evaluations.csv          one row per evaluation (see EVALUATION_COLUMNS)
@@ -21,11 +22,14 @@ import io
 import json
 import os
 import shutil
+import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from sb3_gcrl.compare.evaluation import EVALUATION_COLUMNS
 from sb3_gcrl.compare.run import RunResult, RunSpec
@@ -34,6 +38,9 @@ RUN_FILE = "run.json"
 VISITED_FILE = "visited_goals.npy"
 EVALUATIONS_FILE = "evaluations.csv"
 LOG_FILE = "train.log"
+LOCK_FILE = "compare.lock"
+#: columns every ``evaluations.csv`` must have, with numbers in every row
+REQUIRED_EVALUATION_COLUMNS = ("timesteps", "mean_return")
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -91,22 +98,86 @@ def write_run_result(run_dir: Path, result: RunResult) -> None:
     atomic_write_text(run_dir / RUN_FILE, json.dumps(record, indent=2) + "\n")
 
 
-def read_run_record(run_dir: Path) -> dict[str, Any] | None:
-    """The run's ``run.json`` as a dict, or None when the run never ended (or the file is unreadable)."""
+def load_run_record(run_dir: Path) -> tuple[dict[str, Any] | None, str | None]:
+    """The run's ``run.json`` and, when the file exists but cannot be used, what is wrong with it.
+
+    :param run_dir: the run's folder.
+    :return: ``(record, None)`` for a usable record; ``(None, None)`` when the run never ended (no file);
+        ``(None, problem)`` when the file is unreadable, not JSON, or not a record this package writes.
+    """
+    path = run_dir / RUN_FILE
     try:
-        return json.loads((run_dir / RUN_FILE).read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
+        text = path.read_text()
+    except FileNotFoundError:
+        return None, None
+    except (OSError, UnicodeDecodeError) as error:
+        return None, f"{path} cannot be read ({error})"
+    try:
+        record = json.loads(text)
+    except json.JSONDecodeError as error:
+        return None, f"{path} is not valid JSON ({error})"
+    if not isinstance(record, dict):
+        return None, f"{path} holds a JSON {type(record).__name__}, not a run record (an object)"
+    if record.get("status") not in ("finished", "failed"):
+        return None, f"{path} has status {record.get('status')!r} (expected 'finished' or 'failed')"
+    if not isinstance(record.get("spec", {}), dict):
+        return None, f"{path} has a 'spec' that is not an object"
+    if record["status"] == "finished" and not isinstance(record.get("wall_time_s"), (int, float)):
+        return None, f"{path} has no numeric 'wall_time_s'"
+    return record, None
 
 
-def is_finished(run_dir: Path, spec: RunSpec) -> bool:
+def read_run_record(run_dir: Path) -> dict[str, Any] | None:
+    """The run's ``run.json`` as a dict, or None when the run never ended or the file is unusable
+    (see :func:`load_run_record` for what is wrong with it)."""
+    return load_run_record(run_dir)[0]
+
+
+def evaluations_problem(path: Path) -> str | None:
+    """What is wrong with an ``evaluations.csv``, or None when it is usable.
+
+    Usable: a CSV with at least one row and numbers in every row of :data:`REQUIRED_EVALUATION_COLUMNS`; the
+    other metric columns (``success_rate``...) may be empty (NaN) but must be numeric.
+
+    :param path: the file.
+    :return: a sentence naming the file and the problem, or None.
+    """
+    try:
+        table = pd.read_csv(path)
+    except FileNotFoundError:
+        return f"{path} is missing"
+    except (OSError, UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError) as error:
+        return f"{path} cannot be parsed as CSV ({type(error).__name__}: {str(error).strip()})"
+    missing = [column for column in REQUIRED_EVALUATION_COLUMNS if column not in table.columns]
+    if missing:
+        return f"{path} lacks the column(s) {missing} (its columns: {list(table.columns)})"
+    if table.empty:
+        return f"{path} has a header but no evaluation rows"
+    for column in [c for c in EVALUATION_COLUMNS if c in table.columns]:
+        numbers = pd.to_numeric(table[column], errors="coerce")
+        bad = table[column][numbers.isna() & table[column].notna()]
+        if len(bad):
+            return f"{path}: column {column!r} holds non-numeric values (row {bad.index[0] + 1}: {bad.iloc[0]!r})"
+        if column in REQUIRED_EVALUATION_COLUMNS and numbers.isna().any():
+            return f"{path}: column {column!r} has empty values (row {int(numbers.isna().to_numpy().argmax()) + 1})"
+    return None
+
+
+def is_finished(run_dir: Path, spec: RunSpec, notes: list[str] | None = None) -> bool:
     """True when the run in ``run_dir`` finished with exactly ``spec`` (so it may be skipped).
 
+    A ``run.json`` or ``evaluations.csv`` that exists but cannot be used makes the run unfinished (it is redone).
+
+    :param run_dir: the run's folder.
+    :param spec: the run as planned now.
+    :param notes: receives a sentence for each unusable file found (the caller says so to the user).
     :raises FileExistsError: the folder holds a finished run made with other settings; the message says how
         to proceed (another output folder, or ``--overwrite``).
     """
-    record = read_run_record(run_dir)
-    if record is None or record.get("status") != "finished" or not (run_dir / EVALUATIONS_FILE).is_file():
+    record, problem = load_run_record(run_dir)
+    if problem is not None and notes is not None:
+        notes.append(problem)
+    if record is None or record["status"] != "finished":
         return False
     # the config is compared by content digest, not path (an output folder may move with its repository);
     # fields that a run.json of an older version lacks count as their defaults
@@ -121,7 +192,98 @@ def is_finished(run_dir: Path, spec: RunSpec) -> bool:
             f"{run_dir} holds a finished run made with other settings ({details}). "
             "Use another --out folder, or pass --overwrite to redo such runs."
         )
+    problem = evaluations_problem(run_dir / EVALUATIONS_FILE)
+    if problem is not None and notes is not None:
+        notes.append(problem)
+    return problem is None
+
+
+class OutputInUseError(RuntimeError):
+    """Another live process holds the lock of a comparison's output folder."""
+
+
+@contextlib.contextmanager
+def lock_output(output: Path) -> Iterator[Path]:
+    """Hold the lock of a comparison's output folder: ``OUT/compare.lock`` with this process's pid.
+
+    The lock is an advisory ``flock`` on that file, which the kernel drops when its holder dies, even by
+    SIGKILL: a lock file left by a dead process is taken over. Where ``flock`` does not exist (Windows), the
+    pid in the file is checked instead. The file is removed on exit.
+
+    :param output: the comparison folder (created).
+    :return: the lock file's path.
+    :raises OutputInUseError: a live process holds the lock; the message names its pid and the way out.
+    """
+    output.mkdir(parents=True, exist_ok=True)
+    path = output / LOCK_FILE
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            _acquire(fd, path)
+            if _same_file(fd, path):  # not unlinked by a holder that released it meanwhile
+                break
+        except BaseException:
+            os.close(fd)
+            raise
+        os.close(fd)
+    stale = _lock_holder(path)
+    if stale is not None and stale != os.getpid():
+        print(f"{path}: taking over the lock of process {stale}, which no longer holds it", file=sys.stderr)
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield path
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+        os.close(fd)  # releases the flock
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        return os.path.samestat(os.fstat(fd), os.stat(path))
+    except FileNotFoundError:
+        return False
+
+
+def _acquire(fd: int, path: Path) -> None:
+    """Lock ``fd`` or raise :class:`OutputInUseError` naming the holder's pid."""
+    try:
+        import fcntl
+    except ImportError:  # no flock: trust the pid in the file
+        holder = _lock_holder(path)
+        if holder is not None and holder != os.getpid() and _pid_alive(holder):
+            raise OutputInUseError(_in_use_message(path, holder)) from None
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise OutputInUseError(_in_use_message(path, _lock_holder(path))) from None
+
+
+def _lock_holder(path: Path) -> int | None:
+    try:
+        return int(path.read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
     return True
+
+
+def _in_use_message(path: Path, holder: int | None) -> str:
+    who = f"process {holder}" if holder is not None else "another process"
+    return (
+        f"{path.parent} is in use by another sb3-gcrl compare ({who} holds {path}); running a second one on the "
+        "same folder would race it. Wait for it to end (or stop it), or use another --output folder."
+    )
 
 
 def reset_run_dir(run_dir: Path) -> None:
