@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
+import yaml
 from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_gcrl  # noqa: F401  (registers GCRL/WindyGrid-v0)
@@ -192,3 +195,78 @@ def test_clear_errors():
         TabularQLearning(env=windy(), exploration_initial_eps=1.5)
     with pytest.raises(ValueError, match="gamma"):
         TabularEpisodicControl(env=windy(), gamma=2.0)
+
+
+# ------------------------------------------------------------------------------------------------ reliability
+ALL_TABULAR = [TabularQLearning, TabularEpisodicControl, TabularTwoMemory]
+
+
+@pytest.mark.parametrize("cls", ALL_TABULAR)
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        (dict(learning_rate=1.5), "learning_rate"),
+        (dict(learning_rate=0.0), "learning_rate"),
+        (dict(learning_rate=lambda progress_remaining: 2.0), "learning_rate"),
+        (dict(learning_rate="fast"), "learning_rate"),
+        (dict(gamma=1.2), "gamma"),
+        (dict(gamma=float("nan")), "gamma"),
+        (dict(exploration_final_eps=-0.1), "exploration_final_eps"),
+        (dict(exploration_fraction=2.0), "exploration_fraction"),
+        (dict(batch_size=0), "batch_size"),
+        (dict(learning_starts=-1), "learning_starts"),
+    ],
+)
+def test_hyperparameters_are_validated_at_construction(cls, kwargs, name):
+    with pytest.raises(ValueError, match=f"^{name}"):
+        cls(env=windy(), **kwargs)
+
+
+def test_a_valid_learning_rate_schedule_is_accepted():
+    model = TabularQLearning(env=windy(), learning_rate=lambda progress_remaining: 0.1 * progress_remaining + 0.01)
+    model.learn(100)
+
+
+def test_no_sharing_ec_learns_from_its_own_episodes():
+    # 2Mw/oDS on WindyGrid with the zoo config: EC learns only from the episodes it runs. Most early episodes are
+    # cut by the 100-step limit; if cut episodes wrote nothing, EC's optimistic unvisited entries would never be
+    # used up and EC would keep random-walking (seed 2: 5 EC updates in 30k steps).
+    with open(Path(__file__).parents[1] / "zoo_configs" / "tabular_2m_no_sharing.yml") as file:
+        config = dict(yaml.safe_load(file)[WINDY])
+    for key in ("n_timesteps", "policy"):
+        config.pop(key)
+    assert config["data_sharing"] is False
+    model = TabularTwoMemory(env=windy(), seed=2, **config)
+    policy = model.policy
+    written = []
+    update = policy.update_episodic_memory
+    policy.update_episodic_memory = lambda *args: (written.append(len(args[0])), update(*args))[1]
+    model.learn(3_000)
+    ec_episodes = int(policy.episode_counts[EPISODIC])
+    assert ec_episodes >= 10
+    assert len(written) == ec_episodes  # every EC-run episode, cut or not, updates the table (and only those)
+    assert np.isfinite(model.ec_table).sum() > 100
+
+
+@pytest.mark.parametrize("cls", ALL_TABULAR)
+def test_tensorboard_run_is_named_after_the_class(cls, tmp_path):
+    model = cls(env=windy(), tensorboard_log=str(tmp_path))
+    model.learn(20)
+    assert [p.name for p in tmp_path.iterdir()] == [f"{cls.__name__}_1"]
+
+
+def test_set_random_seed_after_load_is_reproducible(tmp_path):
+    model = TabularTwoMemory(env=windy(), p_ec_schedule=0.5, seed=0)
+    model.learn(600)
+    model.save(tmp_path / "2m.zip")
+    states = np.arange(70)
+    copies = [TabularTwoMemory.load(tmp_path / "2m.zip", env=windy()) for _ in range(2)]
+    copies[0].predict(states, deterministic=False)  # the first copy draws random numbers before it is seeded
+    runs = []
+    for copy in copies:
+        copy.set_random_seed(5)
+        actions = copy.predict(states, deterministic=False)[0]
+        copy.learn(500)
+        runs.append((actions, copy.q_table.copy(), copy.ec_table.copy(), copy.policy.episode_counts.copy()))
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a, b)

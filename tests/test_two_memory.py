@@ -119,7 +119,7 @@ def test_adaptive_schedule_hand_computed():
         ({"type": "decayed", "start": 0.1, "end": 0.9, "decay": 10}, "start >= end"),
         ({"type": "increasing", "start": 0.9, "end": 0.1, "decay": 10}, "start <= end"),
         ({"type": "decayed", "start": 0.9, "end": 0.1, "decay": 0}, "decay"),
-        (1.5, "probability"),
+        (1.5, r"p_ec must be a number in \[0, 1\]"),
         ("sometimes", "Cannot build a p_ec schedule"),
         ({"type": "adaptive", "p_min": 0.9, "p_max": 0.1}, "p_min"),
     ],
@@ -351,8 +351,12 @@ def test_minatar_cnn_matches_authors_network():
 
 
 def test_clear_errors():
-    with pytest.raises(AssertionError, match="Discrete"):
+    with pytest.raises(ValueError, match="TwoMemoryDQN needs a Discrete action space.*use TwoMemorySAC"):
         TwoMemoryDQN("MlpPolicy", Slider())
+    with pytest.raises(ValueError, match="TwoMemorySAC needs a Box action space.*use TwoMemoryDQN"):
+        TwoMemorySAC("MlpPolicy", Corridor())
+    with pytest.raises(ValueError, match="pass p_ec_schedule to TwoMemoryDQN itself"):
+        TwoMemoryDQN("MlpPolicy", Corridor(), policy_kwargs=dict(p_ec_schedule=0.3))
     with pytest.raises(ValueError, match="Cannot build a p_ec schedule"):
         TwoMemoryDQN("MlpPolicy", Corridor(), p_ec_schedule="often")
     with pytest.raises(ValueError, match="SourceTaggedReplayBuffer"):
@@ -366,3 +370,115 @@ def test_clear_errors():
         model.policy.update_episodic_memory(
             model.policy._episode_features(np.full((2, 6), np.nan, np.float32)), np.zeros(2), np.zeros(2)
         )
+
+
+# ------------------------------------------------------------------------------------------------ reliability
+TINY_SAC = dict(learning_starts=20, batch_size=16, buffer_size=2_000, policy_kwargs=dict(net_arch=[16]))
+
+
+@pytest.mark.parametrize("update_truncated", [None, True, False])
+def test_two_memory_sac_writes_truncated_episodes_by_default(update_truncated):
+    # Slider never terminates: every episode is cut by its time limit. The thesis's EC update runs on every
+    # finished episode (Algorithm 1 / 2), so by default CEC must fill up, as standalone CEC does.
+    kwargs = dict(TINY_SAC)
+    if update_truncated is not None:
+        kwargs["policy_kwargs"] = dict(net_arch=[16], ec_update_truncated=update_truncated)
+    model = TwoMemorySAC("MlpPolicy", Slider(), p_ec_schedule=1.0, seed=0, **kwargs)
+    model.learn(60)
+    assert model.policy.episode_counts[EPISODIC] == 6
+    assert (len(model.policy.cec) > 0) == (update_truncated is not False)
+
+
+def _make_ec_the_evaluation_memory(model):
+    model.policy.score_windows.push(EPISODIC, 1e6)  # far above any return of these envs: Eq. 5.6 picks EC
+    assert model.policy.evaluation_memory() == EPISODIC
+
+
+@pytest.mark.parametrize("algorithm", ["dqn", "sac"])
+def test_deterministic_predict_with_ec_is_deterministic(algorithm):
+    if algorithm == "dqn":
+        model, obs = TwoMemoryDQN("MlpPolicy", Corridor(), seed=0, **TINY_DQN), np.eye(6, dtype=np.float32)
+        empty_answer = np.zeros(6, dtype=np.int64)  # equal (+inf) estimates: the lowest action index
+    else:
+        model, obs = TwoMemorySAC("MlpPolicy", Slider(), seed=0, **TINY_SAC), np.linspace(-1, 2, 7, dtype=np.float32)
+        obs = obs.reshape(-1, 1)
+        empty_answer = np.zeros((7, 1), dtype=np.float32)  # the middle of the action space
+    _make_ec_the_evaluation_memory(model)
+    first = model.predict(obs, deterministic=True)[0]
+    np.testing.assert_array_equal(first, empty_answer)
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], first)
+    np.testing.assert_array_equal(model.predict(obs[:1], deterministic=True)[0], first[:1])
+    model.learn(100)
+    _make_ec_the_evaluation_memory(model)
+    answers = [model.predict(obs, deterministic=True)[0] for _ in range(3)]
+    for answer in answers[1:]:
+        np.testing.assert_array_equal(answer, answers[0])
+
+
+def test_constructors_do_not_mutate_the_callers_kwargs():
+    policy_kwargs = dict(net_arch=[16], ec_projection_dim=4)
+    replay_buffer_kwargs = dict(handle_timeout_termination=True)
+    TwoMemoryDQN("MlpPolicy", Corridor(), data_sharing=False, policy_kwargs=policy_kwargs,
+                 replay_buffer_kwargs=replay_buffer_kwargs, learning_starts=10, buffer_size=100)  # fmt: skip
+    assert policy_kwargs == dict(net_arch=[16], ec_projection_dim=4)
+    assert replay_buffer_kwargs == dict(handle_timeout_termination=True)
+    sac_kwargs = dict(net_arch=[16])
+    TwoMemorySAC("MlpPolicy", Slider(), policy_kwargs=sac_kwargs, learning_starts=10, buffer_size=100)
+    assert sac_kwargs == dict(net_arch=[16])
+
+
+def test_defaults_have_one_place():
+    from stable_baselines3 import DQN
+
+    from sb3_gcrl.two_memory import TwoMemoryCallback, TwoMemoryDQNPolicy, TwoMemorySACPolicy
+    from sb3_gcrl.two_memory.schedules import DEFAULT_P_EC_SCHEDULE
+
+    # Table 5.1's decayed schedule, the same for the algorithm and for its policy used with stock DQN
+    algorithm = TwoMemoryDQN("MlpPolicy", Corridor(), gamma=0.9, **TINY_DQN)
+    kwargs = {k: v for k, v in TINY_DQN.items() if k != "policy_kwargs"}
+    stock = DQN(TwoMemoryDQNPolicy, Corridor(), gamma=0.9, policy_kwargs=TINY_DQN["policy_kwargs"], **kwargs)
+    for policy in (algorithm.policy, stock.policy):
+        schedule = policy.p_ec_schedule
+        assert (schedule.start, schedule.end, schedule.decay) == (0.9, 0.1, 500_000)
+    assert DEFAULT_P_EC_SCHEDULE == {"type": "decayed", "start": 0.9, "end": 0.1, "decay": 500_000}
+    # ec_gamma defaults to the algorithm's gamma on both paths
+    assert algorithm.policy.ec_gamma == 0.9
+    stock.learn(30, callback=TwoMemoryCallback())
+    assert stock.policy.ec_gamma == 0.9
+    sac = TwoMemorySAC("MlpPolicy", Slider(), **TINY_SAC)
+    assert sac.policy.p_ec_schedule.decay == TwoMemorySACPolicy.default_p_ec_schedule["decay"]
+
+
+@pytest.mark.parametrize("algorithm", ["dqn", "sac"])
+def test_tensorboard_run_is_named_after_the_class(algorithm, tmp_path):
+    if algorithm == "dqn":
+        model = TwoMemoryDQN("MlpPolicy", Corridor(), tensorboard_log=str(tmp_path), **TINY_DQN)
+    else:
+        model = TwoMemorySAC("MlpPolicy", Slider(), tensorboard_log=str(tmp_path), **TINY_SAC)
+    model.learn(10)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"{type(model).__name__}_1"]
+    model.learn(10, tb_log_name="mine")
+    assert (tmp_path / "mine_1").is_dir()
+
+
+def test_set_random_seed_after_load_is_reproducible(tmp_path):
+    model = TwoMemorySAC("MlpPolicy", Slider(), p_ec_schedule=1.0, seed=0, **TINY_SAC)
+    model.learn(100)
+    model.save(tmp_path / "2m_sac.zip")
+    obs = np.linspace(-1, 2, 7, dtype=np.float32).reshape(-1, 1)
+    copies = [TwoMemorySAC.load(tmp_path / "2m_sac.zip", env=Slider()) for _ in range(2)]
+    for _ in range(3):  # the first copy has drawn random numbers before it is seeded
+        copies[0].predict(obs, deterministic=False)
+    runs = []
+    for copy in copies:
+        copy.set_random_seed(5)
+        assert copy.policy.evaluation_memory() == EPISODIC
+        actions = [copy.predict(obs, deterministic=False)[0] for _ in range(3)]
+        copy.learn(100)
+        runs.append((actions, copy.policy.cec.state_dict(), copy.actor.state_dict()))
+    for a, b in zip(runs[0][0], runs[1][0]):
+        np.testing.assert_array_equal(a, b)
+    for key, value in runs[0][1].items():
+        np.testing.assert_array_equal(value, runs[1][1][key])
+    for key, value in runs[0][2].items():
+        assert th.equal(value, runs[1][2][key])

@@ -11,6 +11,7 @@ from stable_baselines3.common.policies import BasePolicy
 from sb3_gcrl.tabular.policies import TabularECPolicy
 from sb3_gcrl.tabular.tabular_algorithm import TabularAlgorithm
 from sb3_gcrl.two_memory.episodes import EpisodeRecorder, discounted_returns
+from sb3_gcrl.two_memory.schedules import check_unit_interval
 
 
 class TabularEpisodicControl(TabularAlgorithm):
@@ -21,9 +22,11 @@ class TabularEpisodicControl(TabularAlgorithm):
     :param policy: policy class or alias.
     :param env: env with Discrete observation and action spaces.
     :param ec_gamma: discount of the stored returns (None: ``gamma``).
-    :param update_truncated: also learn from time-limit-truncated episodes. Off by default: a cut episode's
-        returns are not returns of the policy (with WindyGrid's -1 per step the steps just before the cut would get
-        the best values of all, and the greedy policy would loop until the time limit).
+    :param update_truncated: also learn from time-limit-truncated episodes (thesis Eq. 5.2 / Algorithm 2: the
+        update runs on every finished episode). With ``False`` a cut episode writes nothing; then an agent that
+        has not reached a terminal state yet never learns at all (its optimistic unvisited entries stay
+        untouched). With ``True`` the partial returns of cut episodes enter the max; with negative step rewards
+        they can exceed the returns of complete episodes (see the two-memory docs).
     :param kwargs: the other :class:`~sb3_gcrl.tabular.tabular_algorithm.TabularAlgorithm` arguments
         (``learning_rate``, ``buffer_size``, ``batch_size``, ``train_freq`` have no effect here).
     """
@@ -36,15 +39,15 @@ class TabularEpisodicControl(TabularAlgorithm):
         policy: str | type[BasePolicy] = "TabularECPolicy",
         env: Any = None,
         ec_gamma: float | None = None,
-        update_truncated: bool = False,
+        update_truncated: bool = True,
         **kwargs: Any,
     ) -> None:
         kwargs.setdefault("buffer_size", 1)
+        if ec_gamma is not None:
+            check_unit_interval("ec_gamma", ec_gamma)
         self.ec_gamma = ec_gamma
         self.update_truncated = update_truncated
         super().__init__(policy, env, **kwargs)
-        if self.ec_gamma is not None and not 0.0 <= self.ec_gamma <= 1.0:
-            raise ValueError(f"ec_gamma must be in [0, 1], got {self.ec_gamma}")
         self._recorder: EpisodeRecorder | None = None
 
     @property

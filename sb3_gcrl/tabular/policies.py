@@ -158,25 +158,29 @@ class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, BasePolicy):
     :param observation_space: Discrete state space.
     :param action_space: Discrete action space.
     :param lr_schedule: unused; kept for SB3's policy signature.
-    :param p_ec_schedule: p_ec schedule (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`).
+    :param p_ec_schedule: p_ec schedule (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`); ``None``:
+        :attr:`default_p_ec_schedule`, the authors' tabular 0.9 -> 0.01 over tau = 2e4 steps (Eq. 5.5).
     :param data_sharing: update the EC table with every episode (True, thesis) or only with its own.
     :param score_window: n of Eq. 5.6.
-    :param ec_gamma: discount of the returns stored in the EC table.
-    :param ec_update_truncated: also learn from time-limit-truncated episodes (see ``TwoMemoryDispatchMixin``).
+    :param ec_gamma: discount of the returns stored in the EC table (``None``: the algorithm's ``gamma``).
+    :param ec_update_truncated: also learn from time-limit-truncated episodes (thesis: every finished episode; see
+        ``TwoMemoryDispatchMixin``).
     :param unseen_value: EC value of an unvisited (s, a).
     :param initial_q: initial Q-value.
     """
+
+    default_p_ec_schedule: dict[str, Any] = {"type": "decayed", "start": 0.9, "end": 0.01, "decay": 20_000}  # noqa: RUF012
 
     def __init__(
         self,
         observation_space: spaces.Space,
         action_space: spaces.Space,
         lr_schedule: Schedule | None = None,
-        p_ec_schedule: PecSchedule | float | str | dict[str, Any] = 0.5,
+        p_ec_schedule: PecSchedule | float | str | dict[str, Any] | None = None,
         data_sharing: bool = True,
         score_window: int = 50,
-        ec_gamma: float = 0.99,
-        ec_update_truncated: bool = False,
+        ec_gamma: float | None = None,
+        ec_update_truncated: bool = True,
         unseen_value: float = 0.0,
         initial_q: float = 0.0,
     ) -> None:

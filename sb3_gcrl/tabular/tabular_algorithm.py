@@ -8,12 +8,58 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_gcrl.tabular.policies import check_tabular_spaces
+from sb3_gcrl.two_memory.schedules import check_unit_interval
 
 SelfTabularAlgorithm = TypeVar("SelfTabularAlgorithm", bound="TabularAlgorithm")
+
+
+def check_tabular_hyperparameters(
+    learning_rate: float | Schedule,
+    gamma: float,
+    exploration_fraction: float,
+    exploration_initial_eps: float,
+    exploration_final_eps: float,
+    buffer_size: int,
+    learning_starts: int,
+    batch_size: int,
+) -> None:
+    """Validate the hyper-parameters of a tabular agent; raise a ValueError that names the parameter.
+
+    The learning rate is the step size of ``Q <- Q + lr * (target - Q)``: it must lie in (0, 1] (above 1 each
+    update overshoots its target and the table diverges). A schedule is checked at the start and the end of
+    training.
+
+    :param learning_rate: step size or schedule of the remaining progress.
+    :param gamma: discount factor, in [0, 1].
+    :param exploration_fraction: fraction of training over which epsilon decays, in [0, 1].
+    :param exploration_initial_eps: initial epsilon, in [0, 1].
+    :param exploration_final_eps: final epsilon, in [0, 1].
+    :param buffer_size: replay buffer size, >= 1.
+    :param learning_starts: random steps before learning, >= 0.
+    :param batch_size: transitions per update, >= 1.
+    :raises ValueError: for the first parameter out of range.
+    """
+    if callable(learning_rate):
+        for progress_remaining in (1.0, 0.0):
+            check_unit_interval(
+                f"learning_rate (schedule at progress_remaining={progress_remaining})",
+                learning_rate(progress_remaining),
+                exclude_zero=True,
+            )
+    else:
+        check_unit_interval("learning_rate", learning_rate, exclude_zero=True)
+    check_unit_interval("gamma", gamma)
+    check_unit_interval("exploration_fraction", exploration_fraction)
+    check_unit_interval("exploration_initial_eps", exploration_initial_eps)
+    check_unit_interval("exploration_final_eps", exploration_final_eps)
+    for name, value, low in (("buffer_size", buffer_size, 1), ("learning_starts", learning_starts, 0),
+                             ("batch_size", batch_size, 1)):  # fmt: skip
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
 
 
 class TabularAlgorithm(OffPolicyAlgorithm):
@@ -24,7 +70,7 @@ class TabularAlgorithm(OffPolicyAlgorithm):
 
     :param policy: policy class or alias.
     :param env: env with Discrete observation and action spaces (or its registered id).
-    :param learning_rate: step size alpha of the tabular update (or a schedule of progress remaining).
+    :param learning_rate: step size alpha of the tabular update, in (0, 1] (or a schedule of progress remaining).
     :param buffer_size: replay buffer size.
     :param learning_starts: env steps of uniformly random actions before acting greedily/learning.
     :param batch_size: transitions per tabular update.
@@ -71,6 +117,16 @@ class TabularAlgorithm(OffPolicyAlgorithm):
         device: str = "cpu",
         _init_setup_model: bool = True,
     ) -> None:
+        check_tabular_hyperparameters(
+            learning_rate,
+            gamma,
+            exploration_fraction,
+            exploration_initial_eps,
+            exploration_final_eps,
+            buffer_size,
+            learning_starts,
+            batch_size,
+        )
         super().__init__(
             policy,
             env,
@@ -94,15 +150,6 @@ class TabularAlgorithm(OffPolicyAlgorithm):
             support_multi_env=True,
             supported_action_spaces=(spaces.Discrete,),
         )
-        if not 0.0 <= gamma <= 1.0:
-            raise ValueError(f"gamma must be in [0, 1], got {gamma}")
-        for name, value in (
-            ("exploration_initial_eps", exploration_initial_eps),
-            ("exploration_final_eps", exploration_final_eps),
-            ("exploration_fraction", exploration_fraction),
-        ):
-            if not 0.0 <= value <= 1.0:
-                raise ValueError(f"{name} must be in [0, 1], got {value}")
         self.exploration_fraction = exploration_fraction
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
@@ -132,6 +179,27 @@ class TabularAlgorithm(OffPolicyAlgorithm):
             explore = np.random.random(n_envs) < self.exploration_rate
             actions[explore] = np.random.randint(self.action_space.n, size=int(explore.sum()))
         return actions, actions
+
+    def learn(
+        self: SelfTabularAlgorithm,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str | None = None,
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfTabularAlgorithm:
+        """SB3's ``learn``; the TensorBoard run is named after the class (``TabularQLearning_1``) unless
+        ``tb_log_name`` is given.
+        """
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=type(self).__name__ if tb_log_name is None else tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "exploration_schedule"]

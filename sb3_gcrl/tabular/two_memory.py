@@ -21,11 +21,10 @@ class TabularTwoMemory(TwoMemoryAlgorithmMixin, TabularAlgorithm):
     ``predict(deterministic=True)`` uses the memory with the higher mean return over its last ``score_window``
     training episodes (Eq. 5.6).
 
-    Defaults follow the authors' tabular code: p_ec 0.9 -> 0.01 over tau = 2e4 steps (Eq. 5.5).
-
     :param policy: policy class or alias.
     :param env: env with Discrete observation and action spaces.
-    :param p_ec_schedule: p_ec schedule, see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`.
+    :param p_ec_schedule: p_ec schedule, see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`. ``None``:
+        the policy's ``default_p_ec_schedule``, the authors' tabular 0.9 -> 0.01 over tau = 2e4 steps (Eq. 5.5).
     :param data_sharing: share every episode between both memories (thesis) or not (2Mw/oDS).
     :param score_window: n of Eq. 5.6.
     :param ec_gamma: discount of the returns stored in the EC table (None: ``gamma``).
@@ -45,8 +44,7 @@ class TabularTwoMemory(TwoMemoryAlgorithmMixin, TabularAlgorithm):
         ec_gamma: float | None = None,
         **kwargs: Any,
     ) -> None:
-        if p_ec_schedule is None:
-            p_ec_schedule = {"type": "decayed", "start": 0.9, "end": 0.01, "decay": 20_000}
+        self._own_two_memory_kwargs(kwargs)
         self.p_ec_schedule = p_ec_schedule
         self.data_sharing = data_sharing
         self.score_window = score_window

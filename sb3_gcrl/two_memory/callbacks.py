@@ -44,6 +44,10 @@ class TwoMemoryCallback(BaseCallback):
                 "use sb3-gcrl train --algo two_memory_dqn (TwoMemoryDQN) for that ablation"
             )
 
+        if self.model.policy.ec_gamma is None:
+            # the policy's ec_gamma default is the algorithm's gamma, as with TwoMemoryDQN
+            self.model.policy.set_ec_gamma(self.model.gamma)
+
     def _on_training_start(self) -> None:
         policy = self.model.policy
         if policy.acting_memory.size != self.model.n_envs:

@@ -21,16 +21,20 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_gcrl.two_memory.buffers import SourceTaggedReplayBuffer
 from sb3_gcrl.two_memory.episodes import EpisodeRecorder, discounted_returns
 from sb3_gcrl.two_memory.schedules import (
+    DEFAULT_P_EC_SCHEDULE,
     EPISODIC,
     PARAMETRIC,
     UNASSIGNED,
     PecSchedule,
     ScoreWindows,
+    check_unit_interval,
     make_pec_schedule,
 )
 
@@ -61,29 +65,33 @@ class TwoMemoryDispatchMixin:
     :meth:`_episodic_state` / :meth:`_load_episodic_state`.
     """
 
+    #: p_ec schedule used when none is given (the one place where each policy's default lives)
+    default_p_ec_schedule: dict[str, Any] = DEFAULT_P_EC_SCHEDULE
+
     def _init_dispatch(
         self,
         p_ec_schedule: PecSchedule | float | str | dict[str, Any],
         data_sharing: bool,
         score_window: int,
-        ec_gamma: float,
-        ec_update_truncated: bool = False,
+        ec_gamma: float | None,
+        ec_update_truncated: bool,
     ) -> None:
-        """:param p_ec_schedule: schedule of p_ec (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`).
+        """:param p_ec_schedule: schedule of p_ec (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`);
+            ``None``: the policy class's :attr:`default_p_ec_schedule`.
         :param data_sharing: update the episodic memory with every episode (thesis default) instead of only its own.
             The algorithm applies the same switch to the replay buffer.
         :param score_window: n of Eq. 5.6 (50 in the thesis).
-        :param ec_gamma: discount of the returns stored in the episodic memory.
-        :param ec_update_truncated: also write time-limit-truncated episodes into the episodic memory. Off by
-            default: the return of a cut episode is not a return of the policy (with negative rewards, e.g.
-            WindyGrid's -1 per step, the last steps before the cut would get the best values of all and EC would
-            loop until the time limit). Their returns still count in the score windows.
+        :param ec_gamma: discount of the returns stored in the episodic memory; ``None``: the algorithm's
+            ``gamma``, filled in by the 2M algorithm or by :class:`~sb3_gcrl.two_memory.callbacks.TwoMemoryCallback`.
+        :param ec_update_truncated: also write time-limit-truncated episodes into the episodic memory (thesis: the
+            Monte-Carlo update of Algorithm 1 / Algorithm 2 runs on every finished episode). ``False`` keeps cut
+            episodes out of the memory (their returns still count in the score windows).
         """
-        if not 0.0 <= ec_gamma <= 1.0:
-            raise ValueError(f"ec_gamma must be in [0, 1], got {ec_gamma}")
-        self.p_ec_schedule = make_pec_schedule(p_ec_schedule)
+        self.p_ec_schedule = make_pec_schedule(self.default_p_ec_schedule if p_ec_schedule is None else p_ec_schedule)
         self.data_sharing = bool(data_sharing)
-        self.ec_gamma = float(ec_gamma)
+        self.ec_gamma = None
+        if ec_gamma is not None:
+            self.set_ec_gamma(ec_gamma)
         self.ec_update_truncated = bool(ec_update_truncated)
         self.score_windows = ScoreWindows(score_window)
         #: memory running each env's current episode (EPISODIC, PARAMETRIC or UNASSIGNED)
@@ -95,6 +103,21 @@ class TwoMemoryDispatchMixin:
         self.last_p_ec = float(self.p_ec_schedule(0, self.score_windows))
         #: episodes run by each memory since construction (saved)
         self.episode_counts = np.zeros(2, dtype=np.int64)
+
+    def set_seed(self, seed: int | None) -> None:
+        """Reseed the policy's own random generators (EC tie-breaking / sampling); numpy's global generator, which
+        draws the acting memories, is seeded by the algorithm. Policies with their own generators override this.
+
+        :param seed: seed.
+        """
+
+    def set_ec_gamma(self, ec_gamma: float) -> None:
+        """Set the discount of the returns stored in the episodic memory.
+
+        :param ec_gamma: discount in [0, 1].
+        """
+        check_unit_interval("ec_gamma", ec_gamma)
+        self.ec_gamma = float(ec_gamma)
 
     # ----------------------------------------------------------------------------------------------- episodes
     def reset_episodes(self, n_envs: int) -> None:
@@ -143,6 +166,11 @@ class TwoMemoryDispatchMixin:
             raise RuntimeError(f"record_step got {n_envs} envs but dispatch was set up for {self.acting_memory.size}")
         if np.any(self.acting_memory == UNASSIGNED):
             raise RuntimeError("record_step called for an env that has no acting memory; call assign_memories first")
+        if self.ec_gamma is None:
+            raise RuntimeError(
+                "ec_gamma is not set: pass ec_gamma to the policy, or train it with a 2M algorithm or with "
+                "TwoMemoryCallback, which use the algorithm's gamma"
+            )
         observations = self._episode_features(observations)
         actions = np.asarray(actions)
         if self.recorder is None:
@@ -348,16 +376,90 @@ class TwoMemoryAlgorithmMixin:
     def _configure_two_memory(self) -> None:
         """Before ``_setup_model``: hand the 2M switches to the policy and pick the replay buffer.
 
-        Reads the algorithm's ``p_ec_schedule``, ``data_sharing``, ``score_window`` and ``ec_gamma`` (``None``:
-        the algorithm's ``gamma``).
+        Reads the algorithm's ``p_ec_schedule`` (``None``: the policy's default), ``data_sharing``, ``score_window``
+        and ``ec_gamma`` (``None``: the algorithm's ``gamma``). The caller's ``policy_kwargs`` and
+        ``replay_buffer_kwargs`` dicts are copied, never modified.
         """
-        self.policy_kwargs.update(
-            p_ec_schedule=self.p_ec_schedule,
+        switches: dict[str, Any] = dict(
             data_sharing=self.data_sharing,
             score_window=self.score_window,
             ec_gamma=self.gamma if self.ec_gamma is None else self.ec_gamma,
         )
+        if self.p_ec_schedule is not None:
+            switches["p_ec_schedule"] = self.p_ec_schedule
+        self.policy_kwargs = {**self.policy_kwargs, **switches}
+        self.replay_buffer_kwargs = dict(self.replay_buffer_kwargs)
         self._two_memory_replay_kwargs(self.data_sharing)
+
+    #: arguments of the 2M algorithms that the algorithm hands to its policy
+    TWO_MEMORY_SWITCHES = ("p_ec_schedule", "data_sharing", "score_window", "ec_gamma")
+
+    @classmethod
+    def _own_two_memory_kwargs(cls, kwargs: dict[str, Any]) -> None:
+        """At construction: replace the caller's ``policy_kwargs`` / ``replay_buffer_kwargs`` in ``kwargs`` by copies
+        (SB3 and the 2M setup write into them) and refuse 2M switches in ``policy_kwargs``.
+
+        :param kwargs: the algorithm's keyword arguments, changed in place.
+        :raises ValueError: naming the switch and where to pass it.
+        """
+        for name in ("policy_kwargs", "replay_buffer_kwargs"):
+            if kwargs.get(name) is not None:
+                kwargs[name] = dict(kwargs[name])
+        for key in cls.TWO_MEMORY_SWITCHES:
+            if key in (kwargs.get("policy_kwargs") or {}):
+                raise ValueError(f"pass {key} to {cls.__name__} itself, not in policy_kwargs")
+
+    @staticmethod
+    def _check_two_memory_action_space(env: Any, expected: type[spaces.Space], algorithm: str, other: str) -> Any:
+        """Make ``env`` (an id is built here, as SB3 would) and check its action space before SB3 asserts on it.
+
+        :param env: env, VecEnv, env id or None (loading).
+        :param expected: the action space class this algorithm supports.
+        :param algorithm: name of this algorithm, for the message.
+        :param other: the 2M algorithm to use instead, for the message.
+        :return: the env (built if an id was given).
+        :raises ValueError: naming ``other`` if the action space is not an ``expected``.
+        """
+        if env is None:
+            return env
+        env = maybe_make_env(env, 0)
+        if not isinstance(env.action_space, expected):
+            raise ValueError(
+                f"{algorithm} needs a {expected.__name__} action space, got {env.action_space}; "
+                f"use {other} for this env"
+            )
+        return env
+
+    def set_random_seed(self, seed: int | None = None) -> None:
+        """SB3's seeding (python, numpy, torch, action space, env) plus the policy's own generators.
+
+        :param seed: seed; ``None`` does nothing, as in SB3.
+        """
+        super().set_random_seed(seed)  # type: ignore[misc]
+        policy = getattr(self, "policy", None)
+        if seed is not None and policy is not None:
+            policy.set_seed(seed)
+
+    def learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str | None = None,
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> Any:
+        """SB3's ``learn``; the TensorBoard run is named after the class (``TwoMemoryDQN_1``) unless
+        ``tb_log_name`` is given.
+        """
+        return super().learn(  # type: ignore[misc]
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=type(self).__name__ if tb_log_name is None else tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
 
     def _two_memory_replay_kwargs(self, data_sharing: bool) -> None:
         """Use a :class:`SourceTaggedReplayBuffer` (unless the user gave a buffer class) that, without data sharing,

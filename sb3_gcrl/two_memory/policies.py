@@ -89,11 +89,13 @@ class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
     :param observation_space: observation space.
     :param action_space: Discrete action space.
     :param lr_schedule: learning rate schedule of the Q-network.
-    :param p_ec_schedule: p_ec schedule (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`).
+    :param p_ec_schedule: p_ec schedule (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`); ``None``:
+        :attr:`default_p_ec_schedule`, Eq. 5.5 with the thesis's decayed 0.9 -> 0.1 (Table 5.1) and tau = 5e5 steps.
     :param data_sharing: update MFEC with every episode (thesis) or only with its own (2Mw/oDS).
     :param score_window: n of Eq. 5.6.
-    :param ec_gamma: discount of the returns stored in MFEC.
-    :param ec_update_truncated: also learn from time-limit-truncated episodes (see ``TwoMemoryDispatchMixin``).
+    :param ec_gamma: discount of the returns stored in MFEC (``None``: the algorithm's ``gamma``).
+    :param ec_update_truncated: also learn from time-limit-truncated episodes (thesis: every finished episode; see
+        ``TwoMemoryDispatchMixin``).
     :param ec_projection_dim: random-projection dimension of the MFEC keys (None: no projection).
     :param ec_capacity_per_action: rows per action table (None: authors' ``1e5 / (2 * n_actions)``).
     :param ec_n_neighbors: k of the MFEC estimate (Table 5.1: 3).
@@ -107,11 +109,11 @@ class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
         observation_space: spaces.Space,
         action_space: spaces.Discrete,
         lr_schedule: Schedule,
-        p_ec_schedule: PecSpec = 0.5,
+        p_ec_schedule: PecSpec | None = None,
         data_sharing: bool = True,
         score_window: int = 50,
-        ec_gamma: float = 0.99,
-        ec_update_truncated: bool = False,
+        ec_gamma: float | None = None,
+        ec_update_truncated: bool = True,
         ec_projection_dim: int | None = 8,
         ec_capacity_per_action: int | None = None,
         ec_n_neighbors: int = 3,
@@ -153,6 +155,13 @@ class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
         data.update(self._two_memory_kwargs)
         return data
 
+    def set_seed(self, seed: int | None) -> None:
+        """Reseed the generator that breaks ties between untried actions (the projection matrix stays).
+
+        :param seed: seed.
+        """
+        self._tie_rng = np.random.default_rng(seed)
+
     def _episodic_actions(self, observation: th.Tensor, deterministic: bool) -> th.Tensor:
         keys = self.embedding(observation.cpu().numpy())
         # untried actions are estimated +inf: break those ties at random while training
@@ -190,17 +199,20 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
     Not in the thesis: 2M with CEC and SAC is this package's extension of Ch. 5 to continuous actions. CEC stores
     actions scaled to [-1, 1] (the space the SAC actor and the replay buffer use). While training, an EC-run step
     takes a uniformly random action with probability ``ec_epsilon`` or when no stored state lies within n*d
-    (Algorithm 1), else the Eq. 4.5 sample plus Gaussian noise of std ``ec_noise_std``; evaluation takes the
-    nearest row's action.
+    (Algorithm 1), else the Eq. 4.5 sample plus Gaussian noise of std ``ec_noise_std``; evaluation
+    (``deterministic=True``) takes the nearest row's action, and an empty memory answers the middle of the action
+    space (as standalone CEC does), so deterministic predictions never draw random numbers.
 
     :param observation_space: observation space (Box, or Dict for goal envs: observation + desired_goal keys).
     :param action_space: Box action space.
     :param lr_schedule: learning rate schedule of SAC.
-    :param p_ec_schedule: p_ec schedule.
+    :param p_ec_schedule: p_ec schedule; ``None``: :attr:`default_p_ec_schedule`, Eq. 5.5 with 0.9 -> 0.1 (Table
+        5.1's decayed schedule) and tau = 5e4 steps (ours: scaled to the 1e5-step budgets of Ch. 4's tasks).
     :param data_sharing: update CEC with every episode or only with its own.
     :param score_window: n of Eq. 5.6.
-    :param ec_gamma: discount of the returns stored in CEC.
-    :param ec_update_truncated: also learn from time-limit-truncated episodes (see ``TwoMemoryDispatchMixin``).
+    :param ec_gamma: discount of the returns stored in CEC (``None``: the algorithm's ``gamma``).
+    :param ec_update_truncated: also learn from time-limit-truncated episodes (thesis Algorithm 1 / 2 and
+        standalone CEC: every finished episode; see ``TwoMemoryDispatchMixin``).
     :param ec_projection_dim: random-projection dimension of the CEC keys (None: none).
     :param ec_capacity: CEC rows.
     :param ec_distance_threshold: d of Table 4.4.
@@ -214,16 +226,18 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
     :param kwargs: :class:`~stable_baselines3.sac.policies.SACPolicy` arguments.
     """
 
+    default_p_ec_schedule: dict[str, Any] = {"type": "decayed", "start": 0.9, "end": 0.1, "decay": 50_000}  # noqa: RUF012
+
     def __init__(
         self,
         observation_space: spaces.Space,
         action_space: spaces.Box,
         lr_schedule: Schedule,
-        p_ec_schedule: PecSpec = 0.5,
+        p_ec_schedule: PecSpec | None = None,
         data_sharing: bool = True,
         score_window: int = 50,
-        ec_gamma: float = 0.99,
-        ec_update_truncated: bool = False,
+        ec_gamma: float | None = None,
+        ec_update_truncated: bool = True,
         ec_projection_dim: int | None = None,
         ec_capacity: int = 100_000,
         ec_distance_threshold: float = 0.1,
@@ -281,6 +295,13 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
         data.update(self._two_memory_kwargs)
         return data
 
+    def set_seed(self, seed: int | None) -> None:
+        """Reseed the generator of EC-run exploration and Eq. 4.5 sampling (the projection matrix stays).
+
+        :param seed: seed.
+        """
+        self._ec_rng = np.random.default_rng(seed)
+
     def _numpy_obs(self, observation: th.Tensor | dict[str, th.Tensor]) -> np.ndarray | dict[str, np.ndarray]:
         if isinstance(observation, dict):
             return {k: v.cpu().numpy() for k, v in observation.items()}
@@ -293,9 +314,10 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
         else:
             actions, found = self.cec.select_actions(keys, self._ec_rng)
             actions = np.clip(actions + self.ec_noise_std * self._ec_rng.standard_normal(actions.shape), -1, 1)
-        random_rows = ~found
-        if not deterministic:
-            random_rows |= self._ec_rng.random(len(keys)) < self.ec_epsilon
+        if deterministic:
+            # greedy_actions answers 0 (the middle of the scaled action space) where the memory is empty
+            return th.as_tensor(actions.reshape((-1, *self.action_space.shape)), dtype=th.float32)
+        random_rows = ~found | (self._ec_rng.random(len(keys)) < self.ec_epsilon)
         actions[random_rows] = self._ec_rng.uniform(-1.0, 1.0, size=(int(random_rows.sum()), actions.shape[1]))
         return th.as_tensor(actions.reshape((-1, *self.action_space.shape)), dtype=th.float32)
 

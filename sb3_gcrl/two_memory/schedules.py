@@ -24,6 +24,9 @@ PARAMETRIC = 1
 #: marks an env whose next episode has not been given a memory yet
 UNASSIGNED = -1
 MEMORY_NAMES = ("ec", "rl")
+#: default p_ec schedule of the 2M agents: Eq. 5.5 with the thesis's decayed schedule 0.9 -> 0.1 (Table 5.1, the
+#: best schedule in Sec. 5.5.3); tau = 5e5 env steps as in the authors' MinAtar runs (the thesis gives no tau)
+DEFAULT_P_EC_SCHEDULE: dict[str, Any] = {"type": "decayed", "start": 0.9, "end": 0.1, "decay": 500_000}
 
 
 class ScoreWindows:
@@ -80,9 +83,19 @@ class PecSchedule(ABC):
     def __call__(self, num_timesteps: int, scores: ScoreWindows) -> float: ...
 
 
-def _check_probability(name: str, value: float) -> float:
-    if not (0.0 <= value <= 1.0) or math.isnan(value):
-        raise ValueError(f"{name} must be a probability in [0, 1], got {value}")
+def check_unit_interval(name: str, value: Any, exclude_zero: bool = False) -> float:
+    """Check that ``value`` is a real number in [0, 1] (or (0, 1] with ``exclude_zero``) and return it as a float.
+
+    :param name: parameter name, used in the error message.
+    :param value: the value to check.
+    :param exclude_zero: also reject 0 (e.g. a learning rate, which would never change a table).
+    :raises ValueError: naming ``name`` if the check fails.
+    """
+    low = "(0" if exclude_zero else "[0"
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number in {low}, 1], got {value!r}")
+    if not (0.0 <= value <= 1.0) or (exclude_zero and value == 0):  # NaN fails the comparison
+        raise ValueError(f"{name} must be a number in {low}, 1], got {value!r}")
     return float(value)
 
 
@@ -95,8 +108,8 @@ class ExponentialSchedule(PecSchedule):
     """
 
     def __init__(self, start: float, end: float, decay: float) -> None:
-        self.start = _check_probability("start", start)
-        self.end = _check_probability("end", end)
+        self.start = check_unit_interval("start", start)
+        self.end = check_unit_interval("end", end)
         if not decay > 0:
             raise ValueError(f"decay (tau of Eq. 5.5, in env steps) must be > 0, got {decay}")
         self.decay = float(decay)
@@ -115,7 +128,7 @@ class ConstantSchedule(PecSchedule):
     """
 
     def __init__(self, p_ec: float) -> None:
-        self.p_ec = _check_probability("p_ec", p_ec)
+        self.p_ec = check_unit_interval("p_ec", p_ec)
 
     def __call__(self, num_timesteps: int, scores: ScoreWindows) -> float:
         return self.p_ec
@@ -150,8 +163,8 @@ class AdaptiveSchedule(PecSchedule):
         min_episodes: int = 5,
         warmup_p_ec: float = 0.5,
     ) -> None:
-        self.p_min = _check_probability("p_min", p_min)
-        self.p_max = _check_probability("p_max", p_max)
+        self.p_min = check_unit_interval("p_min", p_min)
+        self.p_max = check_unit_interval("p_max", p_max)
         if self.p_min > self.p_max:
             raise ValueError(f"p_min ({p_min}) must be <= p_max ({p_max})")
         if not temperature > 0:
@@ -160,7 +173,7 @@ class AdaptiveSchedule(PecSchedule):
             raise ValueError(f"min_episodes must be >= 1, got {min_episodes}")
         self.temperature = float(temperature)
         self.min_episodes = int(min_episodes)
-        self.warmup_p_ec = _check_probability("warmup_p_ec", warmup_p_ec)
+        self.warmup_p_ec = check_unit_interval("warmup_p_ec", warmup_p_ec)
 
     def __call__(self, num_timesteps: int, scores: ScoreWindows) -> float:
         n_ec, n_rl = scores.n_episodes(EPISODIC), scores.n_episodes(PARAMETRIC)

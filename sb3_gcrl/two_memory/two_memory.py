@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
+from gymnasium import spaces
 from stable_baselines3 import DQN, SAC
 from stable_baselines3.common.policies import BasePolicy
 
@@ -33,12 +34,15 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
 
     :param policy: policy class or alias.
     :param env: env with a Discrete action space.
-    :param p_ec_schedule: p_ec schedule (Eq. 5.5 by default with the authors' Breakout values 0.5 -> 0.1,
-        tau = 5e5 steps); see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`.
+    :param p_ec_schedule: p_ec schedule, see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`. ``None``:
+        the policy's ``default_p_ec_schedule``, Eq. 5.5 with the thesis's decayed schedule 0.9 -> 0.1 (Table 5.1,
+        Sec. 5.5.3) and tau = 5e5 env steps.
     :param data_sharing: share all data between both memories (thesis Sec. 5.4.3).
     :param score_window: n of Eq. 5.6 (50).
     :param ec_gamma: discount of the returns stored in MFEC (None: ``gamma``).
     :param kwargs: every :class:`~stable_baselines3.DQN` argument.
+    :raises ValueError: for a non-Discrete action space (use :class:`TwoMemorySAC`), or a 2M switch given in
+        ``policy_kwargs``.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -57,8 +61,8 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
         ec_gamma: float | None = None,
         **kwargs: Any,
     ) -> None:
-        if p_ec_schedule is None:
-            p_ec_schedule = {"type": "decayed", "start": 0.5, "end": 0.1, "decay": 500_000}
+        env = self._check_two_memory_action_space(env, spaces.Discrete, "TwoMemoryDQN", "TwoMemorySAC")
+        self._own_two_memory_kwargs(kwargs)
         self.p_ec_schedule = p_ec_schedule
         self.data_sharing = data_sharing
         self.score_window = score_window
@@ -92,11 +96,14 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
 
     :param policy: policy class or alias (``"MlpPolicy"``, ``"MultiInputPolicy"``).
     :param env: env with a Box action space.
-    :param p_ec_schedule: p_ec schedule (default Eq. 5.5, 0.9 -> 0.1 over tau = 5e4 steps).
+    :param p_ec_schedule: p_ec schedule. ``None``: the policy's ``default_p_ec_schedule``, Eq. 5.5 with 0.9 -> 0.1
+        (Table 5.1's decayed schedule) over tau = 5e4 steps (ours: scaled to the 1e5-step budgets of Ch. 4's tasks).
     :param data_sharing: share all data between both memories.
     :param score_window: n of Eq. 5.6.
     :param ec_gamma: discount of the returns stored in CEC (None: ``gamma``).
     :param kwargs: every :class:`~stable_baselines3.SAC` argument.
+    :raises ValueError: for a non-Box action space (use :class:`TwoMemoryDQN`), or a 2M switch given in
+        ``policy_kwargs``.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -115,8 +122,8 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
         ec_gamma: float | None = None,
         **kwargs: Any,
     ) -> None:
-        if p_ec_schedule is None:
-            p_ec_schedule = {"type": "decayed", "start": 0.9, "end": 0.1, "decay": 50_000}
+        env = self._check_two_memory_action_space(env, spaces.Box, "TwoMemorySAC", "TwoMemoryDQN")
+        self._own_two_memory_kwargs(kwargs)
         self.p_ec_schedule = p_ec_schedule
         self.data_sharing = data_sharing
         self.score_window = score_window
