@@ -462,6 +462,8 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
         buffers = self._episode_buffers
         embed = self.policy.embedding
 
+        # a "rollout" (SB3's on_rollout_start/end) is the collection between two memory updates
+        callback.on_rollout_start()
         while self.num_timesteps < total_timesteps:
             self._update_current_progress_remaining(self.num_timesteps, total_timesteps)
             self.exploration_rate = float(self.exploration_schedule(self._current_progress_remaining))
@@ -486,6 +488,8 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
             if not callback.on_step():
                 break
             self._update_info_buffer(infos, dones)
+            if dones.any():
+                callback.on_rollout_end()
             for env_idx in np.flatnonzero(dones):
                 ep_keys, ep_actions, ep_rewards = buffers.pop(int(env_idx))
                 counts = self._update_memory(ep_keys, ep_actions, discounted_returns(ep_rewards, self.gamma))
@@ -496,7 +500,9 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
                     self.dump_logs()
             self._last_obs = new_obs  # type: ignore[assignment]
             self._last_episode_starts = dones
-
+            if dones.any():
+                callback.on_rollout_start()
+        callback.on_rollout_end()
         callback.on_training_end()
         return self
 
