@@ -1,0 +1,21 @@
+"""MoReFree on a world model (thesis Ch. 3): the model-based reset-free goal-conditioned agent.
+
+Not to be confused with the model-free port of MoReFree's two mechanisms (SAC/TD3 + HER configs of
+:mod:`sb3_gcrl.wrappers` / :mod:`sb3_gcrl.her`, the "MoReFree-SAC port").
+"""
+
+from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
+from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler, morefree_go_explore
+from sb3_gcrl.morefree.morefree import MoReFree
+from sb3_gcrl.morefree.policies import CPU_NETWORK, THESIS_NETWORK, MoReFreePolicy
+
+__all__ = [
+    "CPU_NETWORK",
+    "THESIS_NETWORK",
+    "AgentExploreAction",
+    "MoReFree",
+    "MoReFreePolicy",
+    "PEGScheduler",
+    "SequenceReplayBuffer",
+    "morefree_go_explore",
+]

@@ -1,0 +1,91 @@
+"""Sequence replay for the world model: one continuous stream of states per env, sampled as fixed-length chunks.
+
+Reset-free training shows SB3 segments (truncated, never terminal) whose next ``reset()`` returns the *same*
+state; the stream therefore continues across segment ends and restarts (``is_first``) only at physical resets
+(``reset_infos[i]["physical_reset"]``, True when absent). Row ``t`` of an env's stream holds the state vector
+``x_t`` (``observation`` then ``achieved_goal``), the action executed *before* it (scaled to [-1, 1]; zero at a
+start) and ``is_first_t``. The env's reward is not stored: MoReFree never trains on it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class SequenceReplayBuffer:
+    """Preallocated per-env ring buffers of (state, previous action, is_first).
+
+    :param capacity: rows in total (split evenly between envs).
+    :param n_envs: number of envs.
+    :param state_dim: size of the flat state vector.
+    :param action_dim: action size.
+    """
+
+    def __init__(self, capacity: int, n_envs: int, state_dim: int, action_dim: int) -> None:
+        if capacity < n_envs * 2:
+            raise ValueError(f"buffer_size must be >= 2 * n_envs, got {capacity} for {n_envs} envs")
+        self.rows = capacity // n_envs
+        self.n_envs = n_envs
+        self.states = np.zeros((n_envs, self.rows, state_dim), dtype=np.float32)
+        self.actions = np.zeros((n_envs, self.rows, action_dim), dtype=np.float32)
+        self.is_first = np.zeros((n_envs, self.rows), dtype=bool)
+        self.pos = np.zeros(n_envs, dtype=np.int64)
+        self.full = np.zeros(n_envs, dtype=bool)
+
+    def size(self) -> int:
+        """Rows stored over all envs."""
+        return int(sum(self.rows if f else p for p, f in zip(self.pos, self.full)))
+
+    def add(self, env: int, state: np.ndarray, prev_action: np.ndarray | None) -> None:
+        """Append one row to env ``env``'s stream (``prev_action=None`` marks a start, ``is_first``)."""
+        p = self.pos[env]
+        self.states[env, p] = state
+        if prev_action is None:
+            self.actions[env, p] = 0.0
+            self.is_first[env, p] = True
+        else:
+            self.actions[env, p] = prev_action
+            self.is_first[env, p] = False
+        self.pos[env] = (p + 1) % self.rows
+        if self.pos[env] == 0:
+            self.full[env] = True
+
+    def can_sample(self, length: int) -> bool:
+        """Whether a chunk of ``length`` rows exists."""
+        return any(self.rows >= length if f else p >= length for p, f in zip(self.pos, self.full))
+
+    def sample(self, batch: int, length: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``batch`` chunks of ``length`` consecutive rows, uniform over valid starts; time-major arrays.
+
+        The first row of every chunk is marked ``is_first`` (the world model starts each chunk from the zero state).
+
+        :return: states ``(L, B, state_dim)``, previous actions ``(L, B, action_dim)``, is_first ``(L, B)``.
+        """
+        valid = [i for i in range(self.n_envs) if (self.rows if self.full[i] else self.pos[i]) >= length]
+        if not valid:
+            raise RuntimeError(f"no chunk of {length} steps stored yet")
+        # starts per env: a full ring may not cross its write position
+        counts = np.array([(self.rows if self.full[i] else self.pos[i]) - length + 1 for i in valid])
+        envs = rng.choice(np.array(valid), size=batch, p=counts / counts.sum())
+        starts = np.empty(batch, dtype=np.int64)
+        for k, env in enumerate(envs):
+            n_starts = (self.rows if self.full[env] else self.pos[env]) - length + 1
+            offset = rng.integers(0, n_starts)
+            # in a full ring the oldest row sits at the write position
+            starts[k] = (self.pos[env] + offset) % self.rows if self.full[env] else offset
+        index = (starts[:, None] + np.arange(length)[None, :]) % self.rows
+        states = self.states[envs[:, None], index]
+        actions = self.actions[envs[:, None], index]
+        is_first = self.is_first[envs[:, None], index].copy()
+        is_first[:, 0] = True
+        return states.swapaxes(0, 1), actions.swapaxes(0, 1), is_first.swapaxes(0, 1)
+
+    def sample_states(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` stored state vectors, uniform over the whole buffer (the replay-state goals of Sec. 3.4.2)."""
+        sizes = np.array([self.rows if f else p for p, f in zip(self.pos, self.full)])
+        if sizes.sum() == 0:
+            raise RuntimeError("the replay buffer is empty")
+        flat = rng.integers(0, sizes.sum(), size=n)
+        envs = np.searchsorted(np.cumsum(sizes), flat, side="right")
+        rows = flat - np.concatenate([[0], np.cumsum(sizes)[:-1]])[envs]
+        return self.states[envs, rows].copy()

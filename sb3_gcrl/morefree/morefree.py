@@ -1,0 +1,603 @@
+"""MoReFree on a world model (thesis Ch. 3, Algorithms 1-3, Sec. 3.3.2 and 3.4): an SB3 ``BaseAlgorithm``.
+
+Every ``train_ratio`` env steps (thesis Table 3.2) one training step runs (Algorithm 2, lines 10-14):
+
+1. the world model (:class:`~sb3_gcrl.morefree.networks.WorldModel`) on ``batch_size`` chunks of
+   ``batch_length`` replayed steps; the Plan2Explore ensemble on the same posteriors;
+2. pi_G / V_G in imagination from the posterior states, toward goals drawn w.p. alpha/2 from rho_0, alpha/2 from
+   rho_g* and 1 - alpha uniformly from replayed states (Sec. 3.4.2), with the reward -D(s, g) of the dynamical
+   distance network, which is then trained on those imagined trajectories;
+3. pi_E / V_E in imagination with the ensemble's disagreement as reward.
+
+Actors learn by backpropagating lambda-returns through the model (DreamerV2's ``dynamics`` gradient for
+continuous actions) with an entropy bonus; critics regress the lambda-returns, bootstrapped from slow target
+critics. The environment's reward and ``compute_reward`` are never read for training.
+
+Data collection: in the Go phase of a :class:`~sb3_gcrl.wrappers.GoExploreWrapper` (or with no such wrapper) the
+agent acts with pi_G toward the observation's ``desired_goal`` (the commanded goal); in the Explore phase with
+pi_E (executed through :class:`~sb3_gcrl.morefree.goals.AgentExploreAction`). Exploratory goals come from
+:class:`~sb3_gcrl.morefree.goals.PEGScheduler`, which calls :meth:`MoReFree.plan_exploratory_goal`.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
+from stable_baselines3.common.utils import safe_mean
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from sb3_gcrl.goals.task_goals import TaskRelevantGoals
+from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
+from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler, find_agent_hooks
+from sb3_gcrl.morefree.networks import LatentState, frozen, lambda_returns, symlog
+from sb3_gcrl.morefree.policies import MoReFreePolicy, state_vector
+
+SelfMoReFree = TypeVar("SelfMoReFree", bound="MoReFree")
+
+#: thesis Sec. 3.7.3: alpha = 0.2 for all tasks
+DEFAULT_ALPHA = 0.2
+
+
+class MoReFree(BaseAlgorithm):
+    """Model-based reset-free goal-conditioned agent (MoReFree, thesis Ch. 3) on a DreamerV2-style world model.
+
+    :param policy: ``"MultiInputPolicy"`` / ``"MoReFreePolicy"`` or the class.
+    :param env: goal env (Dict observation, Box actions); for reset-free training wrap it with
+        :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` and :func:`~sb3_gcrl.morefree.morefree_go_explore` and pass
+        :class:`~sb3_gcrl.callbacks.ResetFreeCallback` to ``learn``.
+    :param learning_rate: world-model (and ensemble) learning rate (DreamerV2: 3e-4).
+    :param buffer_size: replay rows (all envs together).
+    :param learning_starts: env steps of uniform random actions before training (Dreamer's prefill).
+    :param batch_size: sequences per world-model batch (DreamerV2/PEG: 50).
+    :param batch_length: steps per sequence (DreamerV2/PEG: 50).
+    :param train_ratio: env steps per training step, thesis Table 3.2 (PointUMaze 2, Sawyer Door 5, Tabletop 1,
+        Fetch tasks and Ant 2).
+    :param imagination_horizon: imagined steps per start state (DreamerV2: 15).
+    :param imagination_starts: posterior states used as imagination starts per training step (``None``: all
+        ``batch_size * batch_length``); fewer is faster on CPU.
+    :param gamma: discount in imagination (DreamerV2: 0.99).
+    :param lambda_: TD(lambda) parameter (DreamerV2: 0.95).
+    :param imagination_alpha: share alpha of task-relevant imagination goals (alpha/2 rho_0, alpha/2 rho_g*);
+        ``None`` reads alpha from the env's Back-and-Forth scheduler (stated once, there), or 0.2 (thesis) when the
+        env has none. Set it to 0 for "MF w/o Imag." and to 0.2 with an ``alpha=0`` env for "MF w/o BF-GE".
+    :param entropy_coef: actor entropy bonus (DreamerV2: 1e-4).
+    :param target_update_interval: training steps between copies into the slow critics (DreamerV2: 100).
+    :param expl_reward_scale: scale of the disagreement reward of pi_E.
+    :param distance_neg_fraction: share of negative (cross-trajectory) pairs of the distance loss (LEXA: 0.1).
+    :param peg_candidates: candidate goals scored per PEG goal.
+    :param peg_horizon: imagined steps of pi_G toward each candidate before V_E scores it (``None``: the Go-phase
+        length H_G of the env's Go/Explore wrapper, else ``imagination_horizon``).
+    :param policy_kwargs: keyword arguments of :class:`~sb3_gcrl.morefree.policies.MoReFreePolicy` (network sizes).
+    :param stats_window_size: episodes in the rollout statistics.
+    :param tensorboard_log: tensorboard log folder.
+    :param verbose: verbosity.
+    :param seed: seed.
+    :param device: ``"cpu"``, ``"cuda"`` or ``"auto"``.
+    :param _init_setup_model: build the networks at construction.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[MoReFreePolicy]]] = {
+        "MultiInputPolicy": MoReFreePolicy,
+        "MoReFreePolicy": MoReFreePolicy,
+    }
+    policy: MoReFreePolicy
+
+    def __init__(
+        self,
+        policy: str | type[MoReFreePolicy],
+        env: GymEnv | str | None,
+        learning_rate: float = 3e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 1000,
+        batch_size: int = 16,
+        batch_length: int = 32,
+        train_ratio: int = 2,
+        imagination_horizon: int = 15,
+        imagination_starts: int | None = 256,
+        gamma: float = 0.99,
+        lambda_: float = 0.95,
+        imagination_alpha: float | None = None,
+        entropy_coef: float = 1e-4,
+        target_update_interval: int = 100,
+        expl_reward_scale: float = 1.0,
+        distance_neg_fraction: float = 0.1,
+        peg_candidates: int = 64,
+        peg_horizon: int | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        if callable(learning_rate):
+            raise TypeError("MoReFree takes a constant learning_rate (a float)")
+        super().__init__(
+            policy,
+            env,
+            learning_rate,
+            policy_kwargs=policy_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            device=device,
+            support_multi_env=True,
+            seed=seed,
+            supported_action_spaces=(spaces.Box,),
+        )
+        checks: list[tuple[str, Any, bool]] = [
+            ("buffer_size", buffer_size, buffer_size >= 2),
+            ("learning_starts", learning_starts, learning_starts >= 0),
+            ("batch_size", batch_size, batch_size >= 1),
+            ("batch_length", batch_length, batch_length >= 2),
+            ("train_ratio", train_ratio, train_ratio >= 1),
+            ("imagination_horizon", imagination_horizon, imagination_horizon >= 1),
+            ("imagination_starts", imagination_starts, imagination_starts is None or imagination_starts >= 1),
+            ("gamma", gamma, 0 <= gamma <= 1),
+            ("lambda_", lambda_, 0 <= lambda_ <= 1),
+            ("imagination_alpha", imagination_alpha, imagination_alpha is None or 0 <= imagination_alpha <= 1),
+            ("entropy_coef", entropy_coef, entropy_coef >= 0),
+            ("target_update_interval", target_update_interval, target_update_interval >= 1),
+            ("distance_neg_fraction", distance_neg_fraction, 0 <= distance_neg_fraction < 1),
+            ("peg_candidates", peg_candidates, peg_candidates >= 1),
+            ("peg_horizon", peg_horizon, peg_horizon is None or peg_horizon >= 1),
+        ]
+        for name, value, ok in checks:
+            if not ok:
+                raise ValueError(f"invalid {name}={value!r}")
+        self.buffer_size = int(buffer_size)
+        self.learning_starts = int(learning_starts)
+        self.batch_size = int(batch_size)
+        self.batch_length = int(batch_length)
+        self.train_ratio = int(train_ratio)
+        self.imagination_horizon = int(imagination_horizon)
+        self.imagination_starts = imagination_starts
+        self.gamma, self.lambda_ = float(gamma), float(lambda_)
+        self.imagination_alpha = imagination_alpha
+        self.entropy_coef = float(entropy_coef)
+        self.target_update_interval = int(target_update_interval)
+        self.expl_reward_scale = float(expl_reward_scale)
+        self.distance_neg_fraction = float(distance_neg_fraction)
+        self.peg_candidates = int(peg_candidates)
+        self.peg_horizon = peg_horizon
+        self._n_updates = 0
+        self._rng = np.random.default_rng(seed)
+        if _init_setup_model:
+            self._setup_model()
+
+    # --- setup ------------------------------------------------------------------------------------------------
+    def _setup_model(self) -> None:
+        self._setup_lr_schedule()
+        self.set_random_seed(self.seed)
+        self.policy = self.policy_class(  # type: ignore[assignment]
+            self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
+        )
+        self.policy = self.policy.to(self.device)
+        action_dim = int(np.prod(self.action_space.shape))
+        self.replay_buffer = SequenceReplayBuffer(self.buffer_size, self.n_envs, self.policy.state_dim, action_dim)
+        self._latent: LatentState | None = None
+        self._prev_action: th.Tensor | None = None
+        self._stream_obs: Any = None
+        self._task_goals: TaskRelevantGoals | None = None
+        self._hooks: list[tuple[PEGScheduler | None, AgentExploreAction | None]] = []
+        self._go_steps: int | None = None
+        self._alpha = DEFAULT_ALPHA if self.imagination_alpha is None else float(self.imagination_alpha)
+
+    def _excluded_save_params(self) -> list[str]:
+        return [
+            *super()._excluded_save_params(),
+            "replay_buffer",
+            "_latent",
+            "_prev_action",
+            "_stream_obs",
+            "_task_goals",
+            "_hooks",
+        ]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy", *(f"policy.{name}_optimizer" for name in MoReFreePolicy.OPTIMIZERS)], []
+
+    def set_random_seed(self, seed: int | None = None) -> None:
+        """Seed python, numpy, torch, the action space and the agent's own generator (replay sampling)."""
+        super().set_random_seed(seed)
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+
+    def save_replay_buffer(self, path: str) -> None:
+        """Pickle the sequence replay buffer (a trusted file only can be loaded back)."""
+        from stable_baselines3.common.save_util import save_to_pkl
+
+        save_to_pkl(path, self.replay_buffer, self.verbose)
+
+    def load_replay_buffer(self, path: str) -> None:
+        """Load a buffer saved by :meth:`save_replay_buffer` (pickle: load trusted files only)."""
+        from stable_baselines3.common.save_util import load_from_pkl
+
+        buffer = load_from_pkl(path, self.verbose)
+        if not isinstance(buffer, SequenceReplayBuffer) or buffer.n_envs != self.n_envs:
+            raise ValueError(f"{path} does not hold a SequenceReplayBuffer for {self.n_envs} env(s)")
+        self.replay_buffer = buffer
+
+    # --- hooks into the Go/Explore wrapper ----------------------------------------------------------------------
+    def _attach(self) -> None:
+        """Find the PEG scheduler / Explore slot of each training env, read alpha and H_G, set up task goals."""
+        env = self.env
+        assert env is not None
+        direct = isinstance(env, DummyVecEnv)
+        self._hooks = [find_agent_hooks(e) for e in env.envs] if direct else []  # type: ignore[attr-defined]
+        if not direct:
+            hooks_wanted = env.has_attr("scheduler")
+            if hooks_wanted and any(isinstance(s, PEGScheduler) for s in self._schedulers()):
+                raise TypeError("MoReFree plans PEG goals in the training process: use a DummyVecEnv (n_envs=1)")
+        for peg, _ in self._hooks:
+            if peg is not None:
+                peg.attach(self)
+        if self.imagination_alpha is None:
+            alpha = env.get_attr("task_goal_alpha")[0] if env.has_attr("task_goal_alpha") else None
+            self._alpha = DEFAULT_ALPHA if alpha is None else float(alpha)
+        if self.peg_horizon is None:
+            self._go_steps = int(env.get_attr("go_steps")[0]) if env.has_attr("go_steps") else None
+        if not env.has_attr("sample_task_goals") and self._task_goals is None:
+            source = env.envs[0] if direct else env  # type: ignore[attr-defined]
+            self._task_goals = TaskRelevantGoals(source, self.policy.goal_dim)
+
+    def _schedulers(self) -> list[Any]:
+        assert self.env is not None
+        out = []
+        for scheduler in self.env.get_attr("scheduler"):
+            out.append(getattr(scheduler, "exploratory", scheduler))
+        return out
+
+    def _detach(self) -> None:
+        for peg, _ in self._hooks:
+            if peg is not None:
+                peg.attach(None)
+
+    def _phases(self) -> list[str]:
+        assert self.env is not None
+        if not self.env.has_attr("phase"):
+            return ["go"] * self.n_envs
+        training = self.env.get_attr("training")
+        return [p if t else "go" for p, t in zip(self.env.get_attr("phase"), training)]
+
+    # --- task-relevant and imagination goals ---------------------------------------------------------------------
+    def _task_goal_samples(self, kind: str, n: int) -> np.ndarray:
+        assert self.env is not None
+        if self._task_goals is None:
+            return np.asarray(self.env.env_method("sample_task_goals", kind, n, indices=[0])[0], dtype=np.float32)
+        return self._task_goals.sample(kind, self._rng, n).astype(np.float32)  # type: ignore[arg-type]
+
+    def sample_imagination_goals(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Goals of the imagined pi_G rollouts (thesis Sec. 3.4.2, Algorithm 2 line 14).
+
+        :param n: number of goals.
+        :return: goals ``(n, goal_dim)`` and their kinds ``(n,)``: 0 rho_0 (w.p. alpha/2), 1 rho_g* (alpha/2),
+            2 replayed states (1 - alpha, uniform over the buffer, not HER's future states).
+        """
+        alpha = self._alpha
+        kinds = self._rng.choice(3, size=n, p=[alpha / 2, alpha / 2, 1 - alpha])
+        goal_dim = self.policy.goal_dim
+        goals = np.empty((n, goal_dim), dtype=np.float32)
+        for kind, name in ((0, "initial"), (1, "evaluation")):
+            mask = kinds == kind
+            if mask.any():
+                goals[mask] = self._task_goal_samples(name, int(mask.sum())).reshape(-1, goal_dim)
+        mask = kinds == 2
+        if mask.any():
+            goals[mask] = self.replay_buffer.sample_states(int(mask.sum()), self._rng)[:, -goal_dim:]
+        return goals, kinds
+
+    def plan_exploratory_goal(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray | None:
+        """PEG goal: the replayed achieved goal whose imagined pi_G rollout ends where V_E is highest.
+
+        :param obs: the env's current observation (one env).
+        :param rng: the scheduler's generator (candidate draws).
+        :return: the goal, or None before training starts.
+        """
+        if self.num_timesteps < self.learning_starts or self.replay_buffer.size() == 0:
+            return None
+        policy = self.policy
+        goal_dim = policy.goal_dim
+        candidates = self.replay_buffer.sample_states(self.peg_candidates, rng)[:, -goal_dim:]
+        horizon = self.peg_horizon or self._go_steps or self.imagination_horizon
+        with th.no_grad():
+            state = th.as_tensor(state_vector(obs), device=self.device).reshape(1, -1)
+            rssm = policy.world_model.rssm
+            action_dim = int(np.prod(self.action_space.shape))
+            post = policy.filter(rssm.initial(1, self.device), th.zeros(1, action_dim, device=self.device), state)
+            n = len(candidates)
+            latent = LatentState(*(x.expand(n, *x.shape[1:]).contiguous() for x in post))
+            goals = symlog(th.as_tensor(candidates, device=self.device))
+            for _ in range(horizon):
+                action, _ = policy.actor_g.act(latent.feat, goals)
+                latent = rssm.img_step(latent, action)
+            scores = policy.critic_e(latent.feat)
+        return candidates[int(th.argmax(scores))].astype(np.float64)
+
+    # --- acting ------------------------------------------------------------------------------------------------
+    def _start_streams(self) -> None:
+        """Begin every env's replay stream and latent state at the current observations (a physical start)."""
+        assert self._last_obs is not None and isinstance(self._last_obs, dict)
+        states = state_vector(self._last_obs)
+        for i in range(self.n_envs):
+            self.replay_buffer.add(i, states[i], None)
+            self._record_reset(self._last_obs, i)
+        action_dim = int(np.prod(self.action_space.shape))
+        self._latent = self.policy.world_model.rssm.initial(self.n_envs, self.device)
+        self._prev_action = th.zeros(self.n_envs, action_dim, device=self.device)
+        self._stream_obs = self._last_obs
+
+    def _record_reset(self, obs: dict[str, np.ndarray], i: int) -> None:
+        if self._task_goals is not None and not self._task_goals.declared:
+            self._task_goals.record_reset({k: obs[k][i] for k in ("achieved_goal", "desired_goal")})
+
+    def _act(self, obs: dict[str, np.ndarray], phases: list[str]) -> np.ndarray:
+        """Actions in [-1, 1]: filter the latent with the new observation, then pi_G (Go) or pi_E (Explore)."""
+        assert self._latent is not None and self._prev_action is not None
+        policy = self.policy
+        with th.no_grad():
+            states, goals = policy.states_to_tensor(obs)
+            self._latent = policy.filter(self._latent, self._prev_action, states)
+            if self.num_timesteps < self.learning_starts:
+                actions = self._rng.uniform(-1, 1, (self.n_envs, *self.action_space.shape)).astype(np.float32)
+                return actions
+            feat = self._latent.feat
+            actions_g, _ = policy.actor_g.act(feat, goals)
+            if "explore" in phases:
+                actions_e, _ = policy.actor_e.act(feat)
+                explore = th.as_tensor([p == "explore" for p in phases], device=self.device).unsqueeze(-1)
+                actions_g = th.where(explore, actions_e, actions_g)
+        return actions_g.cpu().numpy()
+
+    def _store(
+        self, new_obs: dict[str, np.ndarray], scaled: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
+    ) -> None:
+        """Append the step to the replay streams (executed actions) and restart streams at physical resets."""
+        assert self._prev_action is not None and self._latent is not None and self.env is not None
+        states = state_vector(new_obs)
+        executed = scaled.copy()
+        for i, info in enumerate(infos):
+            if "executed_action" in info:
+                executed[i] = self.policy.scale_action(np.asarray(info["executed_action"], dtype=np.float32))
+        self._prev_action = th.as_tensor(executed, device=self.device)
+        for i in range(self.n_envs):
+            if not dones[i]:
+                self.replay_buffer.add(i, states[i], executed[i])
+                continue
+            terminal = infos[i].get("terminal_observation")
+            if terminal is not None:
+                self.replay_buffer.add(i, state_vector(terminal), executed[i])
+            physical = self.env.reset_infos[i].get("physical_reset", True)
+            if physical:
+                self.replay_buffer.add(i, states[i], None)
+                self._record_reset(new_obs, i)
+                self._prev_action[i] = 0.0
+                self._latent.deter[i] = 0.0
+                self._latent.stoch[i] = 0.0
+
+    def collect_rollouts(self, callback: BaseCallback, n_steps: int, log_interval: int | None) -> bool:
+        """Step the envs ``n_steps`` times (one training interval); False when a callback stops training.
+
+        :param callback: the learn callback.
+        :param n_steps: vectorised env steps.
+        :param log_interval: dump the logs every ``log_interval`` finished episodes.
+        :return: whether to continue.
+        """
+        env = self.env
+        assert env is not None and self._last_obs is not None
+        callback.on_rollout_start()
+        for _ in range(n_steps):
+            obs = self._last_obs
+            assert isinstance(obs, dict)
+            phases = self._phases()
+            scaled = self._act(obs, phases)
+            actions = self.policy.unscale_action(scaled)
+            for i, (_, slot) in enumerate(self._hooks):
+                if slot is not None and phases[i] == "explore":
+                    slot.action = actions[i]
+            new_obs, rewards, dones, infos = env.step(actions)
+            self.num_timesteps += env.num_envs
+            callback.update_locals(locals())
+            if not callback.on_step():
+                self._last_obs = new_obs  # type: ignore[assignment]
+                self._store(new_obs, scaled, dones, infos)  # type: ignore[arg-type]
+                self._stream_obs = new_obs
+                callback.on_rollout_end()
+                return False
+            self._update_info_buffer(infos, dones)
+            self._store(new_obs, scaled, dones, infos)  # type: ignore[arg-type]
+            self._last_obs = self._stream_obs = new_obs  # type: ignore[assignment]
+            self._update_current_progress_remaining(self.num_timesteps, self._total_timesteps)
+            for done in dones:
+                if done:
+                    self._episode_num += 1
+                    if log_interval is not None and self._episode_num % log_interval == 0:
+                        self._dump_logs()
+        callback.on_rollout_end()
+        return True
+
+    # --- training ----------------------------------------------------------------------------------------------
+    def _step(self, optimizer: th.optim.Optimizer, loss: th.Tensor, params: Any) -> None:
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        th.nn.utils.clip_grad_norm_(list(params), self.policy.grad_clip)
+        optimizer.step()
+
+    def _imagine(
+        self, actor: Callable[[th.Tensor], tuple[th.Tensor, th.Tensor]], start: LatentState
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """Roll ``actor`` through the world model for ``imagination_horizon`` steps.
+
+        :return: features ``(H + 1, N, F)``, actions ``(H, N, A)``, entropies ``(H, N)``.
+        """
+        rssm = self.policy.world_model.rssm
+        latent = start
+        feats, actions, entropies = [latent.feat], [], []
+        for _ in range(self.imagination_horizon):
+            action, entropy = actor(latent.feat.detach())
+            latent = rssm.img_step(latent, action)
+            feats.append(latent.feat)
+            actions.append(action)
+            entropies.append(entropy)
+        return th.stack(feats), th.stack(actions), th.stack(entropies)
+
+    def _actor_critic(
+        self,
+        feats: th.Tensor,
+        rewards: th.Tensor,
+        entropies: th.Tensor,
+        target: th.nn.Module,
+        goals: th.Tensor | None,
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """Actor loss from one imagined batch (dynamics backpropagation); returns (actor loss, lambda-returns)."""
+        steps = feats.shape[0]
+        expand = None if goals is None else goals.unsqueeze(0).expand(steps, *goals.shape)
+        values = target(feats, expand)
+        returns = lambda_returns(rewards, values, self.gamma, self.lambda_)
+        discount = self.gamma ** th.arange(steps - 1, device=feats.device, dtype=feats.dtype).unsqueeze(-1)
+        actor_loss = -(discount * (returns + self.entropy_coef * entropies)).mean()
+        return actor_loss, returns
+
+    def _critic_loss(
+        self, critic: th.nn.Module, feats: th.Tensor, returns: th.Tensor, goals: th.Tensor | None
+    ) -> th.Tensor:
+        """Discounted regression of the critic on the (detached) lambda-returns of the imagined states."""
+        steps = returns.shape[0]
+        expand = None if goals is None else goals.unsqueeze(0).expand(steps, *goals.shape)
+        discount = self.gamma ** th.arange(steps, device=feats.device, dtype=feats.dtype).unsqueeze(-1)
+        prediction = critic(feats[:-1].detach(), expand)
+        return (discount * (prediction - returns.detach()).pow(2)).mean()
+
+    def train(self) -> None:
+        """One training step (Algorithm 2, lines 10-14): world model, ensemble, pi_G with distance, pi_E."""
+        policy = self.policy
+        policy.set_training_mode(True)
+        wm = policy.world_model
+        states_np, actions_np, first_np = self.replay_buffer.sample(self.batch_size, self.batch_length, self._rng)
+        states = th.as_tensor(states_np, device=self.device)
+        actions = th.as_tensor(actions_np, device=self.device)
+        is_first = th.as_tensor(first_np, device=self.device)
+
+        wm_loss, post, embed, metrics = wm.loss(states, actions, is_first)
+        self._step(policy.wm_optimizer, wm_loss, wm.parameters())
+
+        # Plan2Explore ensemble: next embedding from (features, next action), never across a stream start
+        feat = post.feat.detach()
+        valid = (~is_first[1:]).float()
+        errors = (policy.ensemble(feat[:-1], actions[1:]) - embed[1:].detach().unsqueeze(0)).pow(2).sum(-1)
+        ensemble_loss = (errors * valid).sum() / (valid.sum() * errors.shape[0]).clamp(min=1)
+        self._step(policy.ensemble_optimizer, ensemble_loss, policy.ensemble.parameters())
+
+        start = post.detach().flatten()
+        n_starts = start.deter.shape[0]
+        if self.imagination_starts is not None and self.imagination_starts < n_starts:
+            rows = th.as_tensor(self._rng.choice(n_starts, self.imagination_starts, replace=False), device=self.device)
+            start = LatentState(start.deter[rows], start.stoch[rows], start.logits[rows])
+            n_starts = self.imagination_starts
+
+        # pi_G toward task-relevant / replayed goals, rewarded by the learned dynamical distance
+        goals_np, _ = self.sample_imagination_goals(n_starts)
+        goals = symlog(th.as_tensor(goals_np, device=self.device))
+        with frozen(wm, policy.distance):
+            feats, _, entropies = self._imagine(lambda f: policy.actor_g.act(f, goals), start)
+            rewards = -policy.distance(feats[1:], goals.unsqueeze(0).expand(feats.shape[0] - 1, *goals.shape))
+            actor_g_loss, returns_g = self._actor_critic(feats, rewards, entropies, policy.critic_g_target, goals)
+        self._step(policy.actor_g_optimizer, actor_g_loss, policy.actor_g.parameters())
+        critic_g_loss = self._critic_loss(policy.critic_g, feats, returns_g, goals)
+        self._step(policy.critic_g_optimizer, critic_g_loss, policy.critic_g.parameters())
+        with th.no_grad():
+            achieved = wm.decode_goal(feats.detach())
+        distance_loss = policy.distance.loss(
+            feats.detach(),
+            achieved,
+            n_pairs=feats.shape[0] * feats.shape[1],
+            neg_fraction=self.distance_neg_fraction,
+            generator=None,
+        )
+        self._step(policy.distance_optimizer, distance_loss, policy.distance.parameters())
+
+        # pi_E on the ensemble's disagreement (Plan2Explore)
+        with frozen(wm, policy.ensemble):
+            feats_e, actions_e, entropies_e = self._imagine(policy.actor_e.act, start)
+            rewards_e = self.expl_reward_scale * policy.ensemble.disagreement(feats_e[:-1], actions_e)
+            actor_e_loss, returns_e = self._actor_critic(feats_e, rewards_e, entropies_e, policy.critic_e_target, None)
+        self._step(policy.actor_e_optimizer, actor_e_loss, policy.actor_e.parameters())
+        critic_e_loss = self._critic_loss(policy.critic_e, feats_e, returns_e, None)
+        self._step(policy.critic_e_optimizer, critic_e_loss, policy.critic_e.parameters())
+
+        self._n_updates += 1
+        if self._n_updates % self.target_update_interval == 0:
+            policy.critic_g_target.load_state_dict(policy.critic_g.state_dict())
+            policy.critic_e_target.load_state_dict(policy.critic_e.state_dict())
+        if self._n_updates % 10 == 1:  # .item() syncs a GPU: record every 10 updates
+            log = self.logger.record
+            log("train/n_updates", self._n_updates, exclude="tensorboard")
+            log("train/world_model_loss", wm_loss.item())
+            log("train/recon_loss", metrics["recon_loss"])
+            log("train/kl", metrics["kl"])
+            log("train/ensemble_loss", ensemble_loss.item())
+            log("train/distance_loss", distance_loss.item())
+            log("train/actor_g_loss", actor_g_loss.item())
+            log("train/critic_g_loss", critic_g_loss.item())
+            log("train/imagined_return_g", returns_g.mean().item())
+            log("train/actor_e_loss", actor_e_loss.item())
+            log("train/critic_e_loss", critic_e_loss.item())
+            log("train/imagined_return_e", returns_e.mean().item())
+            log("train/imagination_alpha", self._alpha)
+
+    # --- learn ----------------------------------------------------------------------------------------------------
+    def _dump_logs(self) -> None:
+        time_elapsed = max((time.time_ns() - self.start_time) / 1e9, sys.float_info.epsilon)
+        fps = int((self.num_timesteps - self._num_timesteps_at_start) / time_elapsed)
+        self.logger.record("time/episodes", self._episode_num, exclude="tensorboard")
+        if len(self.ep_info_buffer) > 0 and len(self.ep_info_buffer[0]) > 0:
+            self.logger.record("rollout/ep_rew_mean", safe_mean([ep["r"] for ep in self.ep_info_buffer]))
+            self.logger.record("rollout/ep_len_mean", safe_mean([ep["l"] for ep in self.ep_info_buffer]))
+        if len(self.ep_success_buffer) > 0:
+            self.logger.record("rollout/success_rate", safe_mean(self.ep_success_buffer))
+        self.logger.record("time/fps", fps)
+        self.logger.record("time/time_elapsed", int(time_elapsed), exclude="tensorboard")
+        self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
+        peg = [h[0] for h in self._hooks if h[0] is not None]
+        if peg:
+            self.logger.record("morefree/peg_goals_planned", sum(p.n_planned for p in peg))
+            self.logger.record("morefree/peg_goals_fallback", sum(p.n_fallback for p in peg))
+        self.logger.dump(step=self.num_timesteps)
+
+    def learn(
+        self: SelfMoReFree,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str = "MoReFree",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfMoReFree:
+        total_timesteps, callback = self._setup_learn(
+            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
+        )
+        callback.on_training_start(locals(), globals())
+        self._attach()
+        if self._last_obs is not self._stream_obs or self._latent is None:
+            self._start_streams()
+        try:
+            while self.num_timesteps < total_timesteps:
+                if not self.collect_rollouts(callback, self.train_ratio, log_interval):
+                    break
+                if self.num_timesteps >= self.learning_starts and self.replay_buffer.can_sample(self.batch_length):
+                    self.train()
+        finally:
+            self._detach()
+        self._dump_logs()
+        callback.on_training_end()
+        return self
