@@ -44,6 +44,7 @@ def make(kind: str, seed: int, game: str, log_folder: Path) -> Any:
     """
     from rl_zoo3.exp_manager import ExperimentManager
 
+    prepare_process(single_thread=False)  # our algorithms registered with RL-Zoo (the caller sets the threads)
     algo, config, overrides = KINDS[kind]
     env_id = f"MinAtar/{game}-v1"
     manager = ExperimentManager(

@@ -1,76 +1,52 @@
-"""Reproduce the tabular post-exploration ablation of thesis Ch. 6 (Fig. 6.3, Fig. 6.4, Table 6.2 settings).
+"""Reproduce the post-exploration ablation of thesis Ch. 6 (Fig. 6.3-6.6, Tables 6.2-6.3) via ``sb3-gcrl compare``.
 
-For every task and variant (``off`` = no post-exploration, ``on`` = ``p_pe = 0.5`` as Table 6.2, ``adaptive`` =
-our :class:`~sb3_gcrl.post_exploration.NoveltyAdaptive`) it trains :class:`~sb3_gcrl.imgep.TabularIMGEP`
-over seeds x epsilons, evaluates the greedy success over all reachable goals every ``--eval-freq`` steps, and
-writes ``results.json``, ``summary.md`` (final table), ``curves.png`` (Fig. 6.3-style) and
-``heatmap_<task>.png`` (Fig. 6.4-style visitation heatmaps, seed 0, epsilon 0.1).
+Every run is a comparison run of ``zoo_configs/post_exploration_<task>_<variant>.yml`` (``off`` = no
+post-exploration, ``on`` = Table 6.2/6.3 post-exploration, ``adaptive`` = our novelty-adaptive length): tabular
+IMGEP (:class:`~sb3_gcrl.imgep.TabularIMGEP`, ``--algo imgep``) on FourRooms, LavaGap and LavaCrossing (presets
+``ch6``, ``ch6-quick``), deep IMGEP (DDPG or SAC + HER with
+:class:`~sb3_gcrl.post_exploration.PostExplorationWrapper`) on FetchReach and PointUMaze (preset ``ch6-deep``).
+Settings come only from those files; this script picks tasks, variants, budget, seeds (and, for the lava tasks,
+one layout per seed: the thesis's "environment seeds"; ``--epsilons`` repeats tabular runs with other exploration
+rates, Table 6.2 averages epsilon in {0, 0.1, 0.3}).
 
-Lava tasks use a different layout per seed (the thesis's "environment seeds"); FourRooms keeps layout 0.
+The chapter's metric is the greedy success at reaching *every* goal (Sec. 6.5.1), which the episodic evaluation of
+``sb3-gcrl compare`` (the env's own task) does not measure. The runs save their trained models, and this script
+evaluates each final model with :func:`~sb3_gcrl.post_exploration.evaluate_all_goals`: tabular tasks over every
+reachable cell, deep tasks over a fixed grid (FetchReach: 3x3x3 goals around the initial gripper position within
+the target range; PointUMaze: 4 points in each free cell of the U, at most 150 steps per goal). Tabular models
+also give the visitation entropy (Eq. 6.7), the coverage and the heatmaps (Fig. 6.4); for 2-D deep tasks the
+comparison report draws the visitation heatmap with its entropy. Outputs in ``--out``: one comparison folder per
+task (and layout / epsilon), ``ch6_results.json`` (one row per run), ``summary.md`` and ``heatmap_<task>.png``.
 
-Example (a few minutes on one core)::
+Examples (docs/results.md)::
 
-    nice -n 10 python scripts/reproduce_ch6.py --tasks FourRooms LavaGap LavaCrossing --seeds 5 --steps 100000
+    python scripts/reproduce_ch6.py --tasks FourRooms --seeds 5 --steps 100000 --eval-freq 10000 --out results/ch6
+    python scripts/reproduce_ch6.py --tasks FetchReach --seeds 5 --steps 10000 --eval-freq 2000 --out results/ch6_deep
 
-Deep IMGEP (Fig. 6.5 / 6.6; DDPG + HER 'future' k = 4, Table 6.3 settings via
-:class:`~sb3_gcrl.post_exploration.PostExplorationWrapper`): ``--tasks FetchReach PointUMaze --algo ddpg``; the
-all-goals success is measured on a fixed grid of goals (FetchReach: 3x3x3 around the initial gripper position
-within the target range; PointUMaze: 4 points in each free cell of the U) and the entropy curve (Eq. 6.7) over
-the goal-space bins is recorded at each evaluation.
+Re-running resumes; ``--from-json`` re-summarises ``--out``; ``--quick`` runs the ``ch6-quick`` preset.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import time
+import sys
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import torch as th
 
-import sb3_gcrl  # noqa: F401  (registers GCRL/ envs)
-from sb3_gcrl.her import ExecutedActionHerReplayBuffer
-from sb3_gcrl.imgep import TabularGoalEnv, TabularIMGEP
-from sb3_gcrl.post_exploration import (
-    AllGoalsEvalCallback,
-    NoveltyAdaptive,
-    PostExplorationCallback,
-    PostExplorationWrapper,
-    ProportionalSteps,
-    visitation_entropy,
-)
+from sb3_gcrl.compare.presets import CH6_VARIANTS, config_methods, get_preset, run_preset
 
-TASKS = {
-    "FourRooms": "GCRL/FourRoomsTabular-v0",
-    "LavaCrossing": "GCRL/LavaCrossingTabular-v0",
-    "LavaGap": "GCRL/LavaGapTabular-v0",
+#: tabular tasks: env id and whether each seed gets its own layout
+TABULAR_TASKS = {
+    "FourRooms": ("GCRL/FourRoomsTabular-v0", False),
+    "LavaGap": ("GCRL/LavaGapTabular-v0", True),
+    "LavaCrossing": ("GCRL/LavaCrossingTabular-v0", True),
 }
-VARIANTS = ("off", "on", "adaptive")
-#: Table 6.3 (n_pe, n_bins, tau, noise) and the goal-space box used for bins
-DEEP_TASKS = {
-    "FetchReach": {
-        "env_id": "FetchReach-v4",
-        "n_pe": 30,
-        "n_bins": 20,
-        "tau": 0.0,
-        "noise": 0.01,
-        "low": [1.0, 0.4, 0.35],
-        "high": [1.7, 1.1, 0.95],
-        "eval_steps": 50,
-    },
-    "PointUMaze": {
-        "env_id": "GCRL/PointUMazeGoal-v0",
-        "n_pe": 50,
-        "n_bins": 100,
-        "tau": 0.01,
-        "noise": 0.1,
-        "low": [-1.5, -1.5],
-        "high": [1.5, 1.5],
-        "eval_steps": 150,  # per goal of the grid (the env's horizon is 300)
-    },
-}
+#: deep tasks: env id and the step cap per goal of the all-goals evaluation (None: the env's own time limit)
+DEEP_TASKS = {"FetchReach": ("FetchReach-v4", None), "PointUMaze": ("GCRL/PointUMazeGoal-v0", 150)}
 
 
 def deep_goal_grid(task: str, env: gym.Env) -> np.ndarray:
@@ -90,268 +66,191 @@ def deep_goal_grid(task: str, env: gym.Env) -> np.ndarray:
     return np.concatenate([c + offsets for c in cells])
 
 
-class EntropyRecorder(AllGoalsEvalCallback):
-    """All-goals evaluation that also records the visitation entropy (Eq. 6.7) of the training env's goal space."""
-
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self.entropies: list[float] = []
-
-    def _evaluate(self) -> None:
-        before = len(self.timesteps)
-        super()._evaluate()
-        if len(self.timesteps) > before:
-            space = self.training_env.get_attr("goal_space")[0]
-            self.entropies.append(visitation_entropy(space.counts))
+def _model_file(run_dir: Path) -> Path:
+    files = sorted((run_dir / "zoo").glob("*/*/*.zip"))
+    if not files:
+        raise FileNotFoundError(f"no saved model in {run_dir / 'zoo'} (the run must be made with save_models)")
+    return files[-1]
 
 
-def run_deep(task: str, variant: str, seed: int, algo: str, steps: int, eval_freq: int) -> dict:
-    """Train one deep IMGEP agent (DDPG or SAC + HER) with post-exploration off / on / adaptive."""
-    from stable_baselines3 import DDPG, SAC
-    from stable_baselines3.common.noise import NormalActionNoise
+def evaluate_run(task: str, run_dir: Path, spec: dict[str, Any]) -> dict[str, Any]:
+    """All-goals success of a finished run's saved model (+ entropy, coverage, visit counts for tabular tasks)."""
+    from sb3_gcrl.imgep import TabularGoalEnv, TabularIMGEP
+    from sb3_gcrl.post_exploration import evaluate_all_goals
+    from sb3_gcrl.zoo_config import zoo_config_section
 
-    spec = DEEP_TASKS[task]
-    goal_kwargs = {"tau": spec["tau"], "goal_low": spec["low"], "goal_high": spec["high"], "n_bins": spec["n_bins"]}
-    rule = {"adaptive": {"n_pe": spec["n_pe"]}} if variant == "adaptive" else {"n_pe": spec["n_pe"]}
-    env = PostExplorationWrapper(
-        gym.make(spec["env_id"]), post_exploration=variant != "off", scheduler_kwargs=goal_kwargs, **rule
-    )
-    eval_env = PostExplorationWrapper(gym.make(spec["env_id"]), n_pe=1, scheduler="env_default")  # episodic
-    kwargs = {
-        "learning_rate": 1e-3,
-        "gamma": 0.98,
-        "batch_size": 256,
-        "learning_starts": 4 * (env.spec.max_episode_steps or 300),  # > longest episode (HER needs it complete)
-        "policy_kwargs": {"net_arch": [256, 256, 256]},
-        "replay_buffer_class": ExecutedActionHerReplayBuffer,
-        "replay_buffer_kwargs": {"n_sampled_goal": 4, "goal_selection_strategy": "future"},
-        "seed": seed,
-    }
-    if algo == "ddpg":
-        n_actions = env.action_space.shape[0]
-        kwargs["action_noise"] = NormalActionNoise(np.zeros(n_actions), spec["noise"] * np.ones(n_actions))
-    model = (DDPG if algo == "ddpg" else SAC)("MultiInputPolicy", env, **kwargs)
-    goals = deep_goal_grid(task, eval_env)
-    recorder = EntropyRecorder(eval_env, eval_freq=eval_freq, goals=goals, max_steps=spec["eval_steps"])
-    start = time.perf_counter()
-    model.learn(steps, callback=[PostExplorationCallback(log_freq=eval_freq), recorder])
-    return {
+    row: dict[str, Any] = {
         "task": task,
-        "variant": variant,
-        "seed": seed,
-        "epsilon": 0.1,
-        "algo": algo,
-        "timesteps": recorder.timesteps,
-        "success": recorder.success_rates,
-        "entropy_curve": recorder.entropies,
-        "entropy": recorder.entropies[-1],
-        "coverage": float(np.count_nonzero(env.goal_space.counts) / env.goal_space.n_cells),
-        "post_exploration_steps": env.post_exploration_steps,
-        "episodes": env.episodes,
-        "wall_s": time.perf_counter() - start,
+        "variant": spec["method"],
+        "seed": spec["seed"],
+        "epsilon": spec["hyperparams"].get("epsilon"),
     }
+    env_kwargs = spec["env_kwargs"]
+    if task in TABULAR_TASKS:
+        model = TabularIMGEP.load(_model_file(run_dir), env=gym.make(spec["env_id"], **env_kwargs))
+        eval_env = TabularGoalEnv(gym.make(spec["env_id"], **env_kwargs))
+        success = evaluate_all_goals(model, eval_env)
+        counts = np.asarray(model.goal_space.counts)
+        row.update(
+            entropy=model.visitation_entropy(),
+            coverage=model.coverage(),
+            counts=counts.tolist(),
+            width=int(eval_env.unwrapped.width),
+        )
+    else:
+        from rl_zoo3.utils import ALGOS, get_wrapper_class
+
+        # the eval env RL-Zoo builds from the run's config: its env_wrapper, left in episodic mode (only the
+        # training env is switched to post-exploration by the callback); reset(options={"goal": g}) commands g
+        section = zoo_config_section(Path(spec["config"]), spec["env_id"]) or {}
+        wrap = get_wrapper_class(section)
+        eval_env = gym.make(spec["env_id"], **env_kwargs)
+        eval_env = wrap(eval_env) if wrap is not None else eval_env
+        model = ALGOS[spec["algo"]].load(_model_file(run_dir), env=eval_env, device="cpu")
+        goals = deep_goal_grid(task, eval_env)
+        success = evaluate_all_goals(model, eval_env, goals, max_steps=DEEP_TASKS[task][1])
+    row["success_all_goals"] = float(success.mean())
+    row["n_goals"] = int(success.size)
+    return row
 
 
-def run_one(task: str, variant: str, seed: int, epsilon: float, steps: int, eval_freq: int) -> dict:
-    """Train one agent; return its all-goals success curve, final entropy/coverage and visit counts."""
-    layout_seed = 0 if task == "FourRooms" else seed
-    env = gym.make(TASKS[task], layout_seed=layout_seed)
-    eval_env = TabularGoalEnv(gym.make(TASKS[task], layout_seed=layout_seed))
-    rule = NoveltyAdaptive(p_pe=0.5) if variant == "adaptive" else ProportionalSteps(0.5)
-    model = TabularIMGEP(
-        "TabularGoalPolicy",
-        env,
-        learning_rate=0.1,
-        gamma=0.99,
-        epsilon=epsilon,
-        tau=0.0,
-        post_exploration=variant != "off",
-        post_exploration_rule=rule,
-        seed=seed,
-    )
-    callback = AllGoalsEvalCallback(eval_env, eval_freq=eval_freq)
-    start = time.perf_counter()
-    model.learn(steps, callback=callback, log_interval=0)
-    return {
-        "task": task,
-        "variant": variant,
-        "seed": seed,
-        "epsilon": epsilon,
-        "timesteps": callback.timesteps,
-        "success": callback.success_rates,
-        "entropy": model.visitation_entropy(),
-        "coverage": model.coverage(),
-        "post_exploration_steps": model._n_post_exploration_steps,
-        "episodes": model._n_episodes,
-        "wall_s": time.perf_counter() - start,
-        "counts": model.goal_space.counts.tolist(),
-        "width": int(env.unwrapped.width),
-    }
+def run_task(task: str, args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Run the comparisons of one task and evaluate every finished run."""
+    if task in TABULAR_TASKS:
+        env_id, layout_per_seed = TABULAR_TASKS[task]
+        preset, pattern = ("ch6-quick" if args.quick else "ch6"), f"post_exploration_{task.lower()}_{{name}}"
+    else:
+        env_id, layout_per_seed = DEEP_TASKS[task][0], False
+        preset, pattern = "ch6-deep", f"post_exploration_{task.lower()}_{args.algo}_{{name}}"
+    seeds = list(range(args.seeds)) if args.seeds is not None else list(get_preset(preset).seeds)
+    epsilons = args.epsilons if task in TABULAR_TASKS and args.epsilons else [None]
+    # lava tasks: one comparison per layout seed (env kwargs hold for every run of a comparison)
+    groups = [([seed], {"layout_seed": seed}, f"layout_{seed}") for seed in seeds] if layout_per_seed else []
+    groups = groups or [(seeds, {}, "")]
+    rows = []
+    for epsilon in epsilons:
+        for group_seeds, env_kwargs, name in groups:
+            folder = args.out / task / (f"eps_{epsilon:g}" if epsilon is not None else "") / name
+            result = run_preset(
+                preset,
+                folder,
+                methods=config_methods(args.algo if task in DEEP_TASKS else "imgep", pattern, tuple(args.variants)),
+                envs=[env_id],
+                seeds=group_seeds,
+                n_timesteps=args.steps,
+                eval_freq=args.eval_freq,
+                n_workers=args.workers,
+                hyperparams={"epsilon": epsilon} if epsilon is not None else None,
+                env_kwargs=env_kwargs,
+                save_models=True,
+                title=f"{task}: post-exploration {' vs '.join(args.variants)}",
+            )
+            for spec in result.specs:
+                run_dir = folder / "runs" / spec.relative_dir
+                if not any(s.relative_dir == spec.relative_dir for s, _, _ in result.summary.failed):
+                    rows.append(evaluate_run(task, run_dir, spec.to_dict()))
+                    print(f"{task:12s} {spec.method:8s} seed={spec.seed} eps={epsilon} "
+                          f"all-goals success={rows[-1]['success_all_goals']:.3f}", flush=True)  # fmt: skip
+    return rows
 
 
-def summarise(runs: list[dict]) -> str:
-    """Markdown tables: final all-goals success / entropy / coverage per task and variant (median, mean +- se),
-    paired differences (same seed and epsilon) between variants, and a per-epsilon breakdown."""
+def summarise(rows: list[dict[str, Any]]) -> str:
+    """Markdown table: final all-goals success (median, mean +- se), entropy and coverage per task and variant,
+    and the paired differences (same seed, layout and epsilon) between variants."""
     lines = [
-        "| task | variant | runs | success all goals: median | mean +- se | AUC (mean over evals) | "
-        "entropy (nats) median | coverage median | post-expl. steps median |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| task | variant | runs | success all goals: median | mean +- se | entropy (nats) median | coverage median |",
+        "|---|---|---|---|---|---|---|",
     ]
-    for task in dict.fromkeys(r["task"] for r in runs):
-        for variant in VARIANTS:
-            sel = [r for r in runs if r["task"] == task and r["variant"] == variant]
+    tasks = list(dict.fromkeys(row["task"] for row in rows))
+    for task in tasks:
+        for variant in CH6_VARIANTS:
+            sel = [row for row in rows if row["task"] == task and row["variant"] == variant]
             if not sel:
                 continue
-            final = np.array([r["success"][-1] for r in sel])
-            auc = np.array([np.mean(r["success"]) for r in sel])
+            final = np.array([row["success_all_goals"] for row in sel])
             se = final.std(ddof=1) / np.sqrt(len(final)) if len(final) > 1 else 0.0
+            entropy = np.median([row.get("entropy", np.nan) for row in sel])
+            coverage = np.median([row.get("coverage", np.nan) for row in sel])
             lines.append(
                 f"| {task} | {variant} | {len(sel)} | {np.median(final):.3f} | {final.mean():.3f} +- {se:.3f} | "
-                f"{auc.mean():.3f} | {np.median([r['entropy'] for r in sel]):.3f} | "
-                f"{np.median([r['coverage'] for r in sel]):.3f} | "
-                f"{np.median([r['post_exploration_steps'] for r in sel]):.0f} |"
+                f"{entropy:.3f} | {coverage:.3f} |"
             )
     lines += [
         "",
-        "| task | comparison | pairs | AUC diff median | AUC wins | final diff median | entropy diff median | "
-        "entropy wins |",
+        "| task | comparison | pairs | final diff median | final wins | entropy diff median |",
+        "|---|---|---|---|---|---|",
     ]
-    lines.append("|---|---|---|---|---|---|---|---|")
-    for task in dict.fromkeys(r["task"] for r in runs):
-        by_key = {(r["variant"], r["seed"], r["epsilon"]): r for r in runs if r["task"] == task}
+    for task in tasks:
+        by_key = {(row["variant"], row["seed"], row["epsilon"]): row for row in rows if row["task"] == task}
         for variant, reference in (("on", "off"), ("adaptive", "off"), ("adaptive", "on")):
             pairs = [
-                (run, by_key[(reference, seed, eps)])
-                for (v, seed, eps), run in by_key.items()
+                (row, by_key[(reference, seed, eps)])
+                for (v, seed, eps), row in by_key.items()
                 if v == variant and (reference, seed, eps) in by_key
             ]
             if not pairs:
                 continue
-            d_auc = np.array([np.mean(a["success"]) - np.mean(b["success"]) for a, b in pairs])
-            d_final = np.array([a["success"][-1] - b["success"][-1] for a, b in pairs])
-            d_ent = np.array([a["entropy"] - b["entropy"] for a, b in pairs])
+            d_final = np.array([a["success_all_goals"] - b["success_all_goals"] for a, b in pairs])
+            d_entropy = np.array([a.get("entropy", np.nan) - b.get("entropy", np.nan) for a, b in pairs])
             lines.append(
-                f"| {task} | {variant} - {reference} | {len(pairs)} | {np.median(d_auc):+.3f} | "
-                f"{int((d_auc > 0).sum())}/{len(pairs)} | {np.median(d_final):+.3f} | {np.median(d_ent):+.3f} | "
-                f"{int((d_ent > 0).sum())}/{len(pairs)} |"
+                f"| {task} | {variant} - {reference} | {len(pairs)} | {np.median(d_final):+.3f} | "
+                f"{int((d_final > 0).sum())}/{len(pairs)} | {np.median(d_entropy):+.3f} |"
             )
-    epsilons = sorted({r["epsilon"] for r in runs})
-    if len(epsilons) > 1:
-        lines += ["", "| task | variant | " + " | ".join(f"eps={e:g}: final (AUC)" for e in epsilons) + " |"]
-        lines.append("|---|---|" + "---|" * len(epsilons))
-        for task in dict.fromkeys(r["task"] for r in runs):
-            for variant in VARIANTS:
-                cells = []
-                for eps in epsilons:
-                    sel = [r for r in runs if r["task"] == task and r["variant"] == variant and r["epsilon"] == eps]
-                    if sel:
-                        final = np.median([r["success"][-1] for r in sel])
-                        cells.append(f"{final:.3f} ({np.mean([np.mean(r['success']) for r in sel]):.3f})")
-                if cells:
-                    lines.append(f"| {task} | {variant} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
-def plot(runs: list[dict], out: Path) -> None:
+def plot_heatmaps(rows: list[dict[str, Any]], out: Path) -> None:
+    """Fig. 6.4-style visitation heatmaps of the tabular tasks (seed 0, the smallest epsilon run)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    tasks = list(dict.fromkeys(r["task"] for r in runs))
-    fig, axes = plt.subplots(1, len(tasks), figsize=(5 * len(tasks), 3.6), squeeze=False)
-    colors = {"off": "tab:orange", "on": "tab:blue", "adaptive": "tab:green"}
-    for ax, task in zip(axes[0], tasks):
-        for variant in VARIANTS:
-            sel = [r for r in runs if r["task"] == task and r["variant"] == variant]
-            if not sel:
-                continue
-            x = np.array(sel[0]["timesteps"])
-            n = min(len(r["success"]) for r in sel)
-            y = np.array([r["success"][:n] for r in sel])
-            mean, se = y.mean(0), y.std(0) / np.sqrt(len(y))
-            ax.plot(x[:n], mean, color=colors[variant], label=variant)
-            ax.fill_between(x[:n], mean - se, mean + se, color=colors[variant], alpha=0.2)
-        ax.set_title(task)
-        ax.set_xlabel("environment steps")
-        ax.set_ylabel("greedy success over all goals")
-        ax.legend()
-    fig.tight_layout()
-    fig.savefig(out / "curves.png", dpi=120)
-    deep = [task for task in tasks if task in DEEP_TASKS]
-    if deep:
-        fig, axes = plt.subplots(1, len(deep), figsize=(5 * len(deep), 3.6), squeeze=False)
-        for ax, task in zip(axes[0], deep):
-            for variant in VARIANTS:
-                sel = [r for r in runs if r["task"] == task and r["variant"] == variant]
-                if not sel:
-                    continue
-                n = min(len(r["entropy_curve"]) for r in sel)
-                y = np.array([r["entropy_curve"][:n] for r in sel])
-                ax.plot(sel[0]["timesteps"][:n], y.mean(0), color=colors[variant], label=variant)
-            ax.set_title(f"{task}: visitation entropy (Eq. 6.7)")
-            ax.set_xlabel("environment steps")
-            ax.legend()
-        fig.tight_layout()
-        fig.savefig(out / "entropy.png", dpi=120)
-    for task in tasks:
-        if "counts" not in runs[0]:
-            continue
-        sel = [r for r in runs if r["task"] == task and r["seed"] == 0 and r["epsilon"] == 0.1]
-        if not sel:
-            continue
+    for task in dict.fromkeys(row["task"] for row in rows if "counts" in row):
+        sel = [row for row in rows if row["task"] == task and row["seed"] == 0 and "counts" in row]
+        epsilons = sorted({row["epsilon"] for row in sel}, key=lambda e: -1.0 if e is None else e)
+        sel = [row for row in sel if row["epsilon"] == epsilons[0]]
         fig, axes = plt.subplots(1, len(sel), figsize=(4 * len(sel), 3.6), squeeze=False)
-        for ax, r in zip(axes[0], sel):
-            counts = np.array(r["counts"], dtype=float).reshape(-1, r["width"])
-            im = ax.imshow(np.log1p(counts), cmap="viridis")
-            ax.set_title(f"{task} {r['variant']}: log(1 + visits)")
-            fig.colorbar(im, ax=ax, fraction=0.046)
+        for ax, row in zip(axes[0], sel):
+            counts = np.array(row["counts"], dtype=float).reshape(-1, row["width"])
+            image = ax.imshow(np.log1p(counts), cmap="viridis")
+            ax.set_title(f"{task} {row['variant']}: log(1 + visits)")
+            fig.colorbar(image, ax=ax, fraction=0.046)
         fig.tight_layout()
         fig.savefig(out / f"heatmap_{task}.png", dpi=120)
+        plt.close(fig)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=[*TASKS, *DEEP_TASKS])
-    parser.add_argument("--algo", default="ddpg", choices=["ddpg", "sac"], help="deep tasks only")
-    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    parser.add_argument("--seeds", type=int, default=5, help="seeds (lava tasks: also the layout seeds)")
-    parser.add_argument("--epsilons", type=float, nargs="+", default=[0.0, 0.1, 0.3], help="Table 6.2")
-    parser.add_argument("--steps", type=int, default=100_000, help="env steps per run (thesis figures: 200k+)")
-    parser.add_argument("--eval-freq", type=int, default=10_000)
+    parser.add_argument("--tasks", nargs="+", default=["FourRooms"], choices=[*TABULAR_TASKS, *DEEP_TASKS])
+    parser.add_argument("--algo", default="ddpg", choices=["ddpg", "sac"], help="deep tasks only (sac: off/on)")
+    parser.add_argument("--variants", nargs="+", default=list(CH6_VARIANTS), choices=list(CH6_VARIANTS))
+    parser.add_argument("--seeds", type=int, help="number of seeds 0..N-1 (lava tasks: also the layout seeds)")
+    parser.add_argument("--epsilons", type=float, nargs="+", help="tabular only (default: the config's 0.1)")
+    parser.add_argument("--steps", type=int, help="env steps per run (default: the preset's)")
+    parser.add_argument("--eval-freq", type=int, help="env steps between the compare evaluations")
+    parser.add_argument("--workers", type=int, help="parallel runs (default: the number of cores)")
     parser.add_argument("--out", type=Path, default=Path("results/ch6"))
-    parser.add_argument("--from-json", action="store_true", help="re-summarise and re-plot OUT/results.json")
-    args = parser.parse_args()
+    parser.add_argument("--from-json", action="store_true", help="re-summarise and re-plot OUT/ch6_results.json")
+    parser.add_argument("--quick", action="store_true", help="the ch6-quick preset (pipeline check)")
+    args = parser.parse_args(argv)
+    results = args.out / "ch6_results.json"
     if args.from_json:
-        runs = json.loads((args.out / "results.json").read_text())
-        table = summarise(runs)
-        (args.out / "summary.md").write_text(table + "\n")
-        print(table)
-        plot(runs, args.out)
-        return
-    th.set_num_threads(1)
-    args.out.mkdir(parents=True, exist_ok=True)
-    runs = []
-    for task in args.tasks:
-        for variant in args.variants:
-            for seed in range(args.seeds):
-                for epsilon in args.epsilons if task in TASKS else [0.1]:
-                    if task in TASKS:
-                        runs.append(run_one(task, variant, seed, epsilon, args.steps, args.eval_freq))
-                    else:
-                        runs.append(run_deep(task, variant, seed, args.algo, args.steps, args.eval_freq))
-                    r = runs[-1]
-                    print(
-                        f"{task:12s} {variant:8s} seed={seed} eps={epsilon:.1f} success={r['success'][-1]:.3f} "
-                        f"entropy={r['entropy']:.3f} coverage={r['coverage']:.3f} ({r['wall_s']:.1f}s)",
-                        flush=True,
-                    )
-    (args.out / "results.json").write_text(json.dumps(runs))
-    table = summarise(runs)
+        rows = json.loads(results.read_text())
+    else:
+        rows = [row for task in args.tasks for row in run_task(task, args)]
+        args.out.mkdir(parents=True, exist_ok=True)
+        results.write_text(json.dumps(rows))
+    if not rows:
+        print("no finished runs", file=sys.stderr)
+        return 1
+    table = summarise(rows)
     (args.out / "summary.md").write_text(table + "\n")
     print(table)
-    plot(runs, args.out)
+    plot_heatmaps(rows, args.out)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
