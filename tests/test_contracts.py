@@ -50,6 +50,13 @@ class Case:
     env_id: str
     policy: str
     kwargs: dict[str, Any] = field(default_factory=dict)
+    #: False for an algorithm that runs one env (SB3's ``support_multi_env=False``)
+    multi_env: bool = True
+
+    @property
+    def n_envs(self) -> int:
+        """Envs of the "several envs" tests: 2, or 1 where the algorithm runs one env."""
+        return 2 if self.multi_env else 1
 
     @property
     def cls(self) -> type[BaseAlgorithm]:
@@ -97,7 +104,32 @@ CASES: dict[str, Case] = {
     "tabular_q": Case("tabular_q", "FrozenLake-v1", "TabularQPolicy", {"learning_starts": 10}),
     "tabular_ec": Case("tabular_ec", "FrozenLake-v1", "TabularECPolicy"),
     "tabular_2m": Case("tabular_2m", "FrozenLake-v1", "TabularTwoMemoryPolicy", {"p_ec_schedule": 0.5}),
-    "imgep": Case("imgep", "FrozenLake-v1", "TabularGoalPolicy"),
+    # a MiniGrid task: its goal tile is the task goal that predict() commands on the plain env's states
+    "imgep": Case("imgep", "GCRL/LavaGapTabular-v0", "TabularGoalPolicy", multi_env=False),
+    "morefree": Case(
+        "morefree",
+        "GCRL/GrowingTreeGoal-v0",
+        "MultiInputPolicy",
+        {
+            "learning_starts": 50,
+            "batch_size": 4,
+            "batch_length": 8,
+            "train_ratio": 10,
+            "imagination_horizon": 3,
+            "imagination_starts": 16,
+            "policy_kwargs": {
+                "deter": 16,
+                "stoch": 4,
+                "classes": 4,
+                "hidden": 16,
+                "embed_dim": 16,
+                "model_layers": 1,
+                "actor_hidden": 16,
+                "actor_layers": 1,
+                "ensemble_size": 2,
+            },
+        },
+    ),
 }
 #: extra observation spaces (Dict goal observations) on top of one case per algorithm
 EXTRA_CASES: dict[str, Case] = {
@@ -168,10 +200,16 @@ def assert_same_state(first: Any, second: Any, where: str = "") -> None:
 @pytest.mark.parametrize("deterministic", [True, False])
 def test_predict_single_and_batched_shapes(name: str, deterministic: bool):
     case = ALL_CASES[name]
-    vec_env = case.make_env(n_envs=2)
+    vec_env = case.make_env(n_envs=case.n_envs)
     model = case.make(vec_env)
     action_space = model.action_space
     batch = vec_env.reset()
+    if not case.multi_env:  # a batch of two observations of the one env
+        batch = (
+            {k: np.concatenate([v, v]) for k, v in batch.items()}
+            if isinstance(batch, dict)
+            else np.concatenate([batch, batch])
+        )
     actions, state = model.predict(batch, deterministic=deterministic)
     assert state is None
     assert isinstance(actions, np.ndarray)
@@ -374,7 +412,7 @@ class LocalsRecorder(BaseCallback):
 @algo_names
 def test_callbacks_see_sb3s_hooks_and_locals(name: str, tmp_path: Path):
     case = CASES[name]
-    model = case.make(env=case.make_env(n_envs=2))
+    model = case.make(env=case.make_env(n_envs=case.n_envs))
     recorder = LocalsRecorder()
     eval_env = case.make_env()
     callbacks = CallbackList(
@@ -398,7 +436,7 @@ def test_callbacks_see_sb3s_hooks_and_locals(name: str, tmp_path: Path):
     assert recorder.events.count("training_start") == 1 and recorder.events.count("training_end") == 1
     assert recorder.events.count("rollout_start") >= 1
     assert recorder.events.count("rollout_start") == recorder.events.count("rollout_end")
-    assert recorder.n_calls == pytest.approx(model.num_timesteps / 2, abs=1)
+    assert recorder.n_calls == pytest.approx(model.num_timesteps / case.n_envs, abs=1)
     assert list((tmp_path / "checkpoints").glob("model_*_steps.zip"))
     assert (tmp_path / "best" / "best_model.zip").exists()
     assert list((tmp_path / "every").glob("*.zip"))
@@ -447,6 +485,10 @@ def test_progress_bar_logger_and_tensorboard_run_name(name: str, tmp_path: Path)
 @algo_names
 def test_learn_on_several_envs_and_set_env_after_load(name: str, tmp_path: Path):
     case = CASES[name]
+    if not case.multi_env:
+        with pytest.raises((ValueError, TypeError)):
+            case.make(env=case.make_env(n_envs=2))
+        return
     model = case.make(env=case.make_env(n_envs=2))
     model.learn(N_STEPS)
     assert model.num_timesteps >= N_STEPS

@@ -16,6 +16,8 @@ for MiniGrid), so ``evaluate_policy`` and SB3's ``EvalCallback`` work on the pla
 
 from __future__ import annotations
 
+import sys
+import time
 from typing import Any, TypeVar
 
 import gymnasium as gym
@@ -398,7 +400,10 @@ class TabularIMGEP(BaseAlgorithm):
         )
         callback.on_training_start(locals(), globals())
         while self.num_timesteps < total_timesteps:
-            if not self._run_episode(callback, total_timesteps):
+            callback.on_rollout_start()  # a rollout is one episode (goal, go, post-explore), then the table update
+            keep_going = self._run_episode(callback, total_timesteps)
+            callback.on_rollout_end()
+            if not keep_going:
                 break
             self._update_current_progress_remaining(self.num_timesteps, total_timesteps)
             if log_interval and self._n_episodes % log_interval == 0:
@@ -426,6 +431,10 @@ class TabularIMGEP(BaseAlgorithm):
         self.logger.record("post_exploration/steps", self._n_post_exploration_steps)
         self.logger.record("post_exploration/coverage", self.coverage())
         self.logger.record("post_exploration/visitation_entropy", self.visitation_entropy())
+        time_elapsed = max((time.time_ns() - self.start_time) / 1e9, sys.float_info.epsilon)
+        self.logger.record("time/fps", int((self.num_timesteps - self._num_timesteps_at_start) / time_elapsed))
+        self.logger.record("time/time_elapsed", int(time_elapsed), exclude="tensorboard")
+        self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
         self.logger.dump(step=self.num_timesteps)
 
     # --- saving ---------------------------------------------------------------------------------------------

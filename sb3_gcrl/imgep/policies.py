@@ -73,5 +73,6 @@ class TabularGoalPolicy(BasePolicy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
+        data.pop("normalize_images", None)  # a table has no image preprocessing
         data.update(initial_value=self.initial_value)
         return data
