@@ -65,8 +65,8 @@ def check_tabular_hyperparameters(
 class TabularAlgorithm(OffPolicyAlgorithm):
     """Off-policy tabular agent with epsilon-greedy exploration drawn per env (SB3's DQN draws one coin per batch).
 
-    Defaults follow the authors' tabular 2M code (REFERENCE.md): replay buffer 5e4, batch 32 every 8 steps,
-    learning rate 0.01, epsilon 0.1 -> 0.05. Tables live on the CPU whatever ``device`` says.
+    Defaults follow the authors' tabular 2M code (public repo yangzhao-666/2m): replay buffer 5e4, batch 32 every
+    8 steps, learning rate 0.01, epsilon 0.1 -> 0.05. Tables live on the CPU whatever ``device`` says.
 
     :param policy: policy class or alias.
     :param env: env with Discrete observation and action spaces (or its registered id).

@@ -29,8 +29,8 @@ PecSpec = PecSchedule | float | str | dict[str, Any]
 class MinAtarCNN(BaseFeaturesExtractor):
     """The authors' MinAtar torso: Conv(C->16, 3x3) -> ReLU -> Conv(16->32, 3x3) -> ReLU -> flatten (32*6*6 = 1152).
 
-    With ``net_arch=[]`` the DQN head is the single Linear(1152 -> n_actions) of the authors' network
-    (REFERENCE.md). Observations are channel-last ``(10, 10, C)`` booleans, as MinAtar's gymnasium envs return them.
+    With ``net_arch=[]`` the DQN head is the single Linear(1152 -> n_actions) of the authors' network (public repo
+    yangzhao-666/2m). Observations are channel-last ``(10, 10, C)`` booleans, as MinAtar's gymnasium envs return them.
 
     :param observation_space: ``Box((H, W, C))``.
     """
@@ -84,7 +84,7 @@ def _from_tensors(state: dict[str, th.Tensor], prefix: str) -> dict[str, Any]:
 class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
     """2M policy for discrete actions: an MFEC table (2M-EC) and a DQN Q-network (2M-RL), thesis Ch. 5.
 
-    MFEC keys are a seeded Gaussian random projection of the flattened observation (REFERENCE.md: 8 dims).
+    MFEC keys are a seeded Gaussian random projection of the flattened observation (8 dims in the authors' code).
 
     :param observation_space: observation space.
     :param action_space: Discrete action space.

@@ -28,7 +28,7 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
     ``score_window`` training episodes (Eq. 5.6). Logs ``two_memory/*`` (see
     :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryAlgorithmMixin`).
 
-    Policies: ``"MlpPolicy"`` (SB3 MLP Q-network), ``"MinAtarPolicy"`` (the authors' CNN, REFERENCE.md).
+    Policies: ``"MlpPolicy"`` (SB3 MLP Q-network), ``"MinAtarPolicy"`` (the authors' CNN).
     MFEC settings go in ``policy_kwargs`` (``ec_projection_dim``, ``ec_capacity_per_action``, ``ec_n_neighbors``,
     ``knn_backend``; see :class:`~sb3_gcrl.two_memory.policies.TwoMemoryDQNPolicy`).
 
