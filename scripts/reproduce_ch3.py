@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from sb3_gcrl.compare.cli import _hyperparam
 from sb3_gcrl.compare.presets import get_preset, preset_labels, run_preset, select_methods
 
 PRESETS = ("ch3", "ch3-ablations")
@@ -99,6 +100,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--final-evals", type=int, default=2, help="evaluations averaged into the final score")
     parser.add_argument("--workers", type=int, help="parallel runs (default: the number of cores)")
     parser.add_argument("--out", type=Path, default=Path("results/ch3"))
+    parser.add_argument(
+        "--params",
+        nargs="+",
+        type=_hyperparam,
+        default=[],
+        metavar="KEY:VALUE",
+        help="hyperparameter overrides for every run, values in YAML (as sb3-gcrl compare --hyperparams)",
+    )
     parser.add_argument("--analyse-only", action="store_true", help="only the table of the runs in --out")
     parser.add_argument("--quick", action="store_true", help="the ch3-quick preset (pipeline check)")
     args = parser.parse_args(argv)
@@ -117,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
             n_eval_episodes=args.eval_episodes,
             n_workers=args.workers,
             final_window=args.final_evals,
+            hyperparams=dict(args.params),
         )
         print(result.summary.table)
         failed = bool(result.summary.failed)

@@ -152,8 +152,8 @@ def report(args: argparse.Namespace) -> int:
 
 def _add_run_arguments(parser: argparse.ArgumentParser, preset: str, eval_episodes_help: str) -> None:
     defaults = get_preset(preset)
-    parser.add_argument("--agents", nargs="+", choices=preset_labels(preset), help="default: all")
-    parser.add_argument("--seeds", type=int, nargs="+", help=f"default: {list(defaults.seeds)}")
+    parser.add_argument("--agents", "--agent", nargs="+", choices=preset_labels(preset), help="default: all")
+    parser.add_argument("--seeds", "--seed", type=int, nargs="+", help=f"default: {list(defaults.seeds)}")
     parser.add_argument("--steps", type=int, help=f"env steps per run (default {defaults.n_timesteps:,})")
     parser.add_argument("--eval-every", type=int, help=f"default {defaults.eval_freq:,}")
     parser.add_argument("--eval-episodes", type=int, help=eval_episodes_help)

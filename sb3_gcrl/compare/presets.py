@@ -175,7 +175,7 @@ PRESETS: dict[str, Preset] = {
     ),
     "ch5-minatar": Preset(
         description="2M (TwoMemoryDQN) vs DQN vs MFEC on MinAtar Breakout",
-        methods=("two_memory_dqn", "dqn=dqn:dqn_minatar", "mfec"),
+        methods=("2m=two_memory_dqn", "dqn=dqn:dqn_minatar", "mfec"),
         envs=("MinAtar/Breakout-v1",),
         seeds=(0, 1, 2),
         n_timesteps=100_000,
@@ -186,7 +186,7 @@ PRESETS: dict[str, Preset] = {
     ),
     "ch5-minatar-quick": Preset(
         description="Smoke test of the ch5-minatar preset (one seed, 1,500 steps)",
-        methods=("two_memory_dqn", "dqn=dqn:dqn_minatar", "mfec"),
+        methods=("2m=two_memory_dqn", "dqn=dqn:dqn_minatar", "mfec"),
         envs=("MinAtar/Breakout-v1",),
         seeds=(0,),
         n_timesteps=1_500,
