@@ -10,6 +10,7 @@ from sb3_gcrl.envs import register_envs
 from sb3_gcrl.her import ExecutedActionHerReplayBuffer, TaskRelevantHerReplayBuffer
 from sb3_gcrl.imgep import TabularIMGEP
 from sb3_gcrl.mfec import MFEC
+from sb3_gcrl.morefree import MoReFree
 from sb3_gcrl.post_exploration import PostExplorationCallback, PostExplorationWrapper
 from sb3_gcrl.tabular import TabularEpisodicControl, TabularQLearning, TabularTwoMemory
 from sb3_gcrl.two_memory import TwoMemoryDQN, TwoMemorySAC
@@ -24,6 +25,7 @@ __all__ = [
     "GoExploreWrapper",
     "GoalCommandWrapper",
     "MFEC",
+    "MoReFree",
     "PostExplorationCallback",
     "PostExplorationWrapper",
     "ResetFreeCallback",

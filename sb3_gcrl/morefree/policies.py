@@ -169,7 +169,7 @@ class MoReFreePolicy(BasePolicy):
     OPTIMIZERS = ("wm", "actor_g", "critic_g", "actor_e", "critic_e", "distance", "ensemble")
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
+        data = {"observation_space": self.observation_space, "action_space": self.action_space}
         data.update(
             lr_schedule=self.lr_schedule,
             actor_lr=self.actor_lr,
