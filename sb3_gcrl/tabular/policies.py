@@ -50,7 +50,17 @@ def _states(observation: th.Tensor) -> np.ndarray:
     return observation.reshape(-1).long().cpu().numpy()
 
 
-class TabularQPolicy(BasePolicy):
+class TabularBasePolicy(BasePolicy):
+    """:class:`~stable_baselines3.common.policies.BasePolicy` of a table: no images to normalise, so
+    ``normalize_images`` is not a constructor parameter (``policy.save`` / ``Policy.load`` round-trip)."""
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.pop("normalize_images", None)
+        return data
+
+
+class TabularQPolicy(TabularBasePolicy):
     """Greedy policy of a Q-table ``Q[s, a]`` (tabular 1-step Q-learning, thesis Eq. 5.1 in its tabular form).
 
     :param observation_space: Discrete state space.
@@ -93,7 +103,7 @@ class TabularQPolicy(BasePolicy):
         self.q_table[...] = table
 
 
-class TabularECPolicy(BasePolicy):
+class TabularECPolicy(TabularBasePolicy):
     """Tabular episodic control: ``Q_ec[s, a]`` is the highest discounted return seen after (s, a) (Eq. 5.2).
 
     Unvisited entries are stored as ``-inf`` and read as ``unseen_value`` (0 in the authors' code, which is
@@ -151,7 +161,7 @@ class TabularECPolicy(BasePolicy):
         self.ec_table[...] = table
 
 
-class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, BasePolicy):
+class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, TabularBasePolicy):
     """Tabular 2M (thesis Sec. 5.5.1): a :class:`TabularECPolicy` (2M-EC) and a :class:`TabularQPolicy` (2M-RL)
     with per-episode dispatch (Algorithm 2) and the evaluation choice of Eq. 5.6.
 
@@ -184,7 +194,7 @@ class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, BasePolicy):
         unseen_value: float = 0.0,
         initial_q: float = 0.0,
     ) -> None:
-        BasePolicy.__init__(self, observation_space, action_space)
+        TabularBasePolicy.__init__(self, observation_space, action_space)
         self.ec_policy = TabularECPolicy(observation_space, action_space, unseen_value=unseen_value)
         self.q_policy = TabularQPolicy(observation_space, action_space, initial_value=initial_q)
         self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated)
