@@ -1,4 +1,4 @@
-"""Goal spaces, task-relevant goals and schedulers (issue 3, items 1 and 3; Eq. 6.5 shared with issue 5)."""
+"""Goal spaces, task-relevant goals and schedulers (thesis Sec. 3.4, Alg. 3, Eq. 6.5 and 6.7)."""
 
 from __future__ import annotations
 
@@ -189,3 +189,81 @@ def test_recorded_goals_are_visible_in_counts_before_a_block_fills() -> None:
     for _ in range(3000):  # more than one block
         space.record(np.array([0.7]))
     assert space.counts[1] == 3001 and space.n_visited == 2
+
+
+# --- bounds inferred from the goals the env shows ---------------------------------------------------------------------
+class WideBoundsGoalEnv(gym.Env):
+    """A goal env whose spaces say +-10 (like panda-gym's) while every goal lives in +-0.15."""
+
+    def __init__(self) -> None:
+        box = gym.spaces.Box(-10.0, 10.0, (2,), np.float64)
+        self.observation_space = gym.spaces.Dict({"observation": box, "achieved_goal": box, "desired_goal": box})
+        self.action_space = gym.spaces.Box(-0.02, 0.02, (2,), np.float32)
+        self.x = np.zeros(2)
+        self.goal = np.zeros(2)
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        return {"observation": self.x.copy(), "achieved_goal": self.x.copy(), "desired_goal": self.goal.copy()}
+
+    def compute_reward(self, achieved_goal, desired_goal, info) -> np.ndarray:
+        return -(np.linalg.norm(achieved_goal - desired_goal, axis=-1) > 0.02).astype(np.float64)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x = self.np_random.uniform(-0.05, 0.05, 2)
+        self.goal = self.np_random.uniform(-0.15, 0.15, 2)
+        return self._obs(), {}
+
+    def step(self, action):
+        self.x = np.clip(self.x + np.asarray(action, dtype=np.float64), -0.15, 0.15)
+        obs = self._obs()
+        reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"], {}))
+        return obs, reward, False, False, {"is_success": reward == 0.0}
+
+
+def test_novelty_bins_follow_the_goals_not_the_nominal_space_bounds() -> None:
+    from sb3_gcrl.wrappers import GoExploreWrapper, ResetFreeWrapper
+
+    env = ResetFreeWrapper(gym.wrappers.TimeLimit(WideBoundsGoalEnv(), 100), eval_horizon=100)
+    env = GoExploreWrapper(env, "back_and_forth", {"n_bins": 10})  # no goal_low / goal_high given
+    env.set_training_mode(True)
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    commanded = []
+    for _ in range(3000):
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+            commanded.append(env.goal)
+    space = env.scheduler.exploratory.goal_space
+    assert np.all(space.high - space.low <= 1.2)  # within a factor 4 of the goals' extent (0.3), not 20
+    assert np.all(space.low <= -0.05) and np.all(space.high >= 0.05)
+    assert space.n_visited >= 10  # novelty has bins to choose from (nominal bounds: 1-4 bins)
+    assert np.all(np.abs(commanded) <= 0.15 + 1e-9)
+
+
+def test_inferred_bounds_grow_by_merging_bins_with_exact_counts() -> None:
+    rng = np.random.default_rng(0)
+    space = BinnedGoalSpace(n_bins=[4, 5], within_bin="visited", dim=2)
+    with pytest.raises(RuntimeError, match="No goal seen yet"):
+        space.bin_index(np.zeros(2))
+    first = rng.uniform(0.0, 0.1, (50, 2))
+    space.add(first)
+    np.testing.assert_allclose([space.low, space.high], [first.min(0), first.max(0)], rtol=1e-12)
+    space.add(np.array([[-3.0, 0.05], [0.05, 7.0]]))  # far outside, below in x and above in y
+    more = rng.uniform(-3.0, 7.0, (200, 2))
+    space.add(more)
+    assert space.counts.sum() == 252  # no visit lost while the box grew
+    assert np.all(space.low <= -3.0) and np.all(space.high >= 7.0)
+    assert np.all(space.high - space.low <= 4 * (10.0 + 0.1))
+    everything = np.concatenate([first, [[-3.0, 0.05], [0.05, 7.0]], more])
+    expected = np.bincount(space.bin_index(everything), minlength=space.n_cells)
+    # merged counts = counts binned afresh in the final box, up to goals within rounding of a bin edge (the first
+    # batch's maximum sits on the initial box's upper edge)
+    position = (everything - space.low) / space.bin_width
+    on_edge = int(np.any(np.abs(position - np.round(position)) < 1e-9, axis=1).sum())
+    assert on_edge <= 2 and np.abs(space.counts - expected).sum() <= 2 * on_edge
+    visited = np.flatnonzero(space.counts)
+    np.testing.assert_array_equal(space.bin_index(space.goals_in_bins(visited, rng)), visited)  # real visited goals
+    space.extend(np.array([20.0, 20.0]))  # a task goal widens the box without counting a visit
+    assert space.counts.sum() == 252 and np.all(space.high >= 20.0)

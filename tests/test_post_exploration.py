@@ -107,7 +107,7 @@ def make_tree(post_exploration: bool = True, n_pe: int = 3, **kwargs) -> PostExp
 
 def test_post_exploration_starts_on_success_lasts_n_pe_steps_and_reports_executed_actions() -> None:
     env = make_tree(n_pe=3)
-    env.enable_post_exploration()
+    env.set_training_mode(True)
     obs, _ = env.reset(seed=0, options={"goal": [0.5]})
     zero = np.zeros(1, dtype=np.float32)
     flags, executed = [], []
@@ -135,7 +135,7 @@ def test_post_exploration_starts_on_success_lasts_n_pe_steps_and_reports_execute
 
 def test_without_post_exploration_the_episode_ends_at_the_goal() -> None:
     env = make_tree(post_exploration=False)
-    env.enable_post_exploration()
+    env.set_training_mode(True)
     env.reset(seed=0, options={"goal": [0.0]})
     *_, truncated, info = env.step(np.zeros(1, dtype=np.float32))
     assert truncated and info["is_success"] and not info["post_exploration"]
@@ -159,7 +159,7 @@ def test_requested_goal_is_the_goal_the_agent_sees_and_is_judged_on(mode: str) -
     # all-goals evaluation commands each goal through reset(options={"goal": g}); the observation must carry g
     env = make_tree(n_pe=3)
     if mode == "post_exploration":
-        env.enable_post_exploration()
+        env.set_training_mode(True)
     for goal, reached in (([0.5], False), ([0.0], True), ([-0.3], False)):
         obs, _ = env.reset(seed=0, options={"goal": goal})
         np.testing.assert_allclose(obs["desired_goal"], goal)
@@ -258,6 +258,6 @@ def test_wrapper_passes_env_checkers_in_both_modes() -> None:
     for training in (False, True):
         env = make()
         if training:
-            env.enable_post_exploration()
+            env.set_training_mode(True)
         gym_check_env(env, skip_render_check=True)
         sb3_check_env(make(), warn=False)

@@ -339,3 +339,122 @@ def test_eval_horizon_sets_the_inner_time_limit_seen_by_monitor() -> None:
     assert lengths == [25, 25]
     with pytest.raises(ValueError, match="needs a TimeLimit inside the Monitor"):
         ResetFreeWrapper(Monitor(LineGoalEnv()), eval_horizon=10)
+
+
+# --- SB3's BitFlippingEnv: MultiBinary, Discrete and image goals ----------------------------------------------------
+BIT_FLIPPING_VARIANTS = {
+    "continuous": {"continuous": True},
+    "discrete_actions": {},
+    "discrete_obs": {"discrete_obs_space": True},
+    "image": {"image_obs_space": True},
+}
+
+
+def bit_flipping(variant: str, scheduler: str = "back_and_forth", **scheduler_kwargs: Any) -> gym.Env:
+    from stable_baselines3.common.envs import BitFlippingEnv
+
+    env = gym.wrappers.TimeLimit(BitFlippingEnv(n_bits=4, **BIT_FLIPPING_VARIANTS[variant]), max_episode_steps=8)
+    return GoExploreWrapper(ResetFreeWrapper(env, eval_horizon=8), scheduler, scheduler_kwargs or None)
+
+
+@pytest.mark.parametrize("variant", list(BIT_FLIPPING_VARIANTS))
+def test_bit_flipping_env_trains_with_sb3_her_in_every_variant(variant: str) -> None:
+    from stable_baselines3 import DQN, SAC
+
+    from sb3_gcrl.callbacks import ResetFreeCallback
+    from sb3_gcrl.her import TaskRelevantHerReplayBuffer
+
+    # image goals cannot be binned: Back-and-Forth with the env's own goal as exploratory goal
+    kwargs = {"exploratory": "env_default"} if variant == "image" else {}
+    env = bit_flipping(variant, **kwargs)
+    algo = SAC if variant == "continuous" else DQN
+    model = algo(
+        "MultiInputPolicy",
+        env,
+        replay_buffer_class=TaskRelevantHerReplayBuffer,  # alpha = 0.2 read from the scheduler
+        learning_starts=40,
+        batch_size=16,
+        policy_kwargs={"net_arch": [8]},
+        seed=0,
+    )
+    model.learn(120, callback=ResetFreeCallback())
+    assert model.replay_buffer.task_goal_ratio == 0.2
+    model.replay_buffer.sample(16)  # task-relevant relabeling in the buffer's goal layout
+    assert sum(env.goal_counts.values()) > 0
+    obs, _ = env.reset()
+    assert env.observation_space.contains(obs)
+
+
+@pytest.mark.parametrize("variant", ["discrete_actions", "discrete_obs"])
+def test_novelty_bins_discrete_goals_one_bin_per_value(variant: str) -> None:
+    env = bit_flipping(variant, "novelty")
+    space = env.scheduler.goal_space
+    assert space.n_cells == 16  # 4 bits: 2 x 2 x 2 x 2 bins, or Discrete(16): 16 bins
+    env.set_training_mode(True)
+    env.reset(seed=0)
+    for _ in range(200):
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+        assert env.observation_space["desired_goal"].contains(env.goal.astype(np.int64).reshape(env._goal_shape))
+    assert space.n_visited > 4  # visits counted per bit pattern, not lumped together
+    with pytest.raises(ValueError, match="discrete and is binned exactly"):
+        bit_flipping(variant, "novelty", n_bins=3)
+
+
+def test_image_goals_refuse_binning_with_the_fix() -> None:
+    with pytest.raises(ValueError, match="cannot be binned.*exploratory='env_default'"):
+        bit_flipping("image", "novelty")
+    with pytest.raises(ValueError, match="cannot be binned"):
+        bit_flipping("image")  # back_and_forth's default exploratory scheduler is novelty
+
+
+# --- plain envs: reset-free yes, task-relevant goals no ------------------------------------------------------------
+def test_reset_free_training_of_a_plain_env_and_goal_wrappers_refusing_it() -> None:
+    env = ResetFreeWrapper(gym.make("Pendulum-v1"), hard_reset_every=450, segment_length=100)  # TimeLimit 200 inside
+    env.set_training_mode(True)
+    env.reset(seed=0)
+    ends = [t for t, (_, truncated, _) in enumerate(run(env, 900)) if truncated]
+    assert ends == [99, 199, 299, 399, 449, 549, 649, 749, 849, 899]  # segments, hard reset at 450, no 200-step limit
+    assert env.interventions == 3
+    with pytest.raises(TypeError, match="needs a goal env"):
+        GoExploreWrapper(ResetFreeWrapper(gym.make("Pendulum-v1"), eval_horizon=200))
+
+
+# --- one place for each setting --------------------------------------------------------------------------------------
+def test_eval_horizon_is_read_from_the_reset_free_wrapper_and_a_second_different_one_is_refused() -> None:
+    env = GoExploreWrapper(ResetFreeWrapper(LineGoalEnv(), eval_horizon=40), "env_default")
+    assert (env.go_steps, env.explore_steps) == (20, 20)
+    GoExploreWrapper(ResetFreeWrapper(LineGoalEnv(), eval_horizon=40), "env_default", eval_horizon=40)
+    with pytest.raises(ValueError, match="eval_horizon given twice with different values"):
+        GoExploreWrapper(ResetFreeWrapper(LineGoalEnv(), eval_horizon=40), "env_default", eval_horizon=30)
+
+
+# --- training without the switching callback warns -------------------------------------------------------------------
+def test_training_without_the_callback_warns_and_evaluation_does_not() -> None:
+    import warnings
+
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.evaluation import evaluate_policy
+
+    from sb3_gcrl.callbacks import ResetFreeCallback
+
+    def make(env: gym.Env) -> gym.Env:
+        return GoExploreWrapper(ResetFreeWrapper(env, eval_horizon=10), "env_default")
+
+    def model() -> SAC:
+        env = make_vec_env(lambda: gym.wrappers.TimeLimit(LineGoalEnv(), 10), n_envs=1, seed=0, wrapper_class=make)
+        return SAC("MultiInputPolicy", env, learning_starts=1000, policy_kwargs={"net_arch": [8]})
+
+    forgot = model()
+    with pytest.warns(UserWarning, match=r"never switched to training mode.*callback=ResetFreeCallback\(\)"):
+        forgot.learn(30)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        model().learn(30, callback=ResetFreeCallback())
+        fresh = model()
+        evaluate_policy(fresh, fresh.get_env(), n_eval_episodes=2)  # evaluation: episodic, no warning
+        on_purpose = model()
+        on_purpose.get_env().env_method("set_training_mode", False)  # episodic training chosen explicitly
+        on_purpose.learn(30)

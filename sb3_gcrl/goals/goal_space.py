@@ -11,7 +11,7 @@ Bounds: given (``goal_low``/``goal_high``), or inferred from the goals the env s
 workspace), and ten bins over them would put every goal in one bin, so novelty would do nothing. Without given
 bounds the box is the bounding box of the goals seen so far (the task-relevant goals at resets and every
 achieved goal); when a goal falls outside, the box doubles along that dimension and every two old bins merge
-into one new bin, so the counts stay exact and the bins stay within a factor 2 of the data's extent.
+into one new bin, so the counts stay exact and the box stays within a factor 4 of the data's extent.
 :func:`binned_goal_space_for` builds the goal space of a gymnasium space (discrete spaces: one bin per value).
 """
 
@@ -170,11 +170,12 @@ class BinnedGoalSpace:
             raise ValueError(f"goals must be finite to infer the goal-space bounds, got {goals}")
         if np.isnan(self.low[0]):  # the first goals set the box
             extent = np.maximum(hi - lo, MIN_RELATIVE_EXTENT * np.maximum(1.0, np.abs(lo)))
-            self.low, self.high = lo.copy(), np.maximum(lo + extent, hi)
+            # the box is half-open, [low, high): no goal on the upper edge, so merged bins equal fresh binning
+            self.low, self.high = lo.copy(), np.maximum(lo + extent, np.nextafter(hi, np.inf))
             self.bin_width = (self.high - self.low) / self.n_bins
             return
-        for d in np.flatnonzero((lo < self.low) | (hi > self.high)):
-            while lo[d] < self.low[d] or hi[d] > self.high[d]:
+        for d in np.flatnonzero((lo < self.low) | (hi >= self.high)):
+            while lo[d] < self.low[d] or hi[d] >= self.high[d]:
                 self._double(int(d), downward=bool(lo[d] < self.low[d]))
 
     def _double(self, d: int, downward: bool) -> None:
