@@ -154,8 +154,10 @@ class GoalCommandWrapper(
             self._task_goal_rng = np.random.default_rng(seeds[1])
         obs, info = self.env.reset(seed=seed, options=options)
         physical = info.get("physical_reset", True)
-        if physical and not self.task_goals.declared:
-            self.task_goals.record_reset(obs)
+        if physical:
+            if not self.task_goals.declared:
+                self.task_goals.record_reset(obs)
+            self.scheduler.observe_task_goal(np.ravel(obs["desired_goal"]))  # e.g. inferred goal bins span rho_g*
         if not self.training:
             if physical and self._mode_below is None:
                 self._arm_mode_check()
@@ -164,7 +166,6 @@ class GoalCommandWrapper(
             return obs, info
         if physical:
             self.scheduler.reset_pending()
-            self.scheduler.observe_task_goal(np.ravel(obs["desired_goal"]))
         self.scheduler.observe(obs["achieved_goal"])
         self._set_goal(self.scheduler.next_goal(obs, self._rng))
         self.goal_kind = self.scheduler.kind
