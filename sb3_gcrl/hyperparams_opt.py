@@ -71,10 +71,7 @@ def sample_mfec_params(trial: optuna.Trial, n_actions: int, n_envs: int, additio
 def sample_two_memory_dqn_params(
     trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]
 ) -> dict:
-    """TwoMemoryDQN (thesis Ch. 5, Table 5.1: epsilon, p_ec schedule, learning rate).
-
-    Table 5.1's k is a policy argument (``policy_kwargs``), which RL-Zoo's sampler interface would replace whole
-    (losing the config's network settings), so it is not sampled.
+    """TwoMemoryDQN (thesis Ch. 5, Table 5.1: epsilon, p_ec schedule, learning rate, MFEC's k).
 
     :param trial: the optuna trial.
     :param n_actions: number of actions (unused).
@@ -86,16 +83,15 @@ def sample_two_memory_dqn_params(
         "learning_rate": trial.suggest_categorical("learning_rate", [1e-3, 1e-4]),
         "exploration_initial_eps": trial.suggest_categorical("exploration_initial_eps", [0.1, 0.9]),
         "p_ec_schedule": _p_ec_schedule(trial, decay=trial.suggest_float("p_ec_decay", 1e4, 1e6, log=True)),
+        "ec_n_neighbors": trial.suggest_categorical("ec_n_neighbors", [1, 3, 10]),
     }
 
 
 def sample_two_memory_sac_params(
     trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]
 ) -> dict:
-    """TwoMemorySAC (CEC + SAC, ours): Table 5.1's switching schedules and SAC's learning rate.
-
-    CEC's k and tau are policy arguments (``policy_kwargs``), which RL-Zoo's sampler interface would replace whole,
-    so they are not sampled.
+    """TwoMemorySAC (CEC + SAC, ours): Table 5.1's switching schedules, SAC's learning rate, and CEC's k and softmax
+    temperature (Table 4.4).
 
     :param trial: the optuna trial.
     :param n_actions: action dimension (unused).
@@ -106,6 +102,8 @@ def sample_two_memory_sac_params(
     return {
         "learning_rate": trial.suggest_categorical("learning_rate", [3e-4, 1e-3, 1e-4]),
         "p_ec_schedule": _p_ec_schedule(trial, decay=trial.suggest_float("p_ec_decay", 1e4, 1e6, log=True)),
+        "ec_n_neighbors": trial.suggest_categorical("ec_n_neighbors", [1, 3, 5]),
+        "ec_temperature": trial.suggest_categorical("ec_temperature", [0.1, 1.0, 10.0]),
     }
 
 

@@ -270,7 +270,7 @@ def test_dict_embedding_order_and_errors():
 
 def test_discounted_returns_and_episode_buffers():
     np.testing.assert_allclose(discounted_returns(np.array([0.0, 0.0, 1.0]), 0.5), [0.25, 0.5, 1.0])
-    buffers = EpisodeBuffers(n_envs=2, key_dim=1, action_shape=(1,), initial_length=2)
+    buffers = EpisodeBuffers(n_envs=2, key_shape=1, action_shape=(1,), initial_length=2)
     for t in range(5):  # grows past the initial length
         buffers.add(np.array([[t], [10 + t]]), np.array([[t], [-t]]), np.array([t, 2 * t]))
     keys, actions, rewards = buffers.pop(1)
@@ -431,7 +431,7 @@ def _widen_keys(state):
 @pytest.mark.parametrize("algo", [CEC, MFEC])
 def test_load_surfaces_the_memorys_own_error(algo, corrupt, match, tmp_path):
     """A memory that cannot be restored fails with its own error, not SB3's KeyError: 'policy.optimizer'."""
-    from sb3_gcrl.memory.control import MemoryRestoreError
+    from sb3_gcrl.common.episodic_control import MemoryRestoreError
 
     model = _make(algo, seed=0)
     model.learn(200, log_interval=None)

@@ -19,7 +19,7 @@ from sb3_gcrl.tabular import (
 )
 from sb3_gcrl.tabular.policies import TabularECPolicy, greedy_actions
 from sb3_gcrl.two_memory import EPISODIC, PARAMETRIC, SourceTaggedReplayBuffer
-from sb3_gcrl.two_memory.episodes import discounted_returns
+from sb3_gcrl.memory.episode import discounted_returns
 
 WINDY = "GCRL/WindyGrid-v0"
 
@@ -90,7 +90,7 @@ def test_episodic_control_learns_chain_exactly():
 def test_episodic_control_skips_truncated_episodes(update_truncated):
     # the goal (4 steps away) is never reached within 3 steps: every episode is cut by the time limit
     env = gym.wrappers.TimeLimit(ChainEnv(), max_episode_steps=3)
-    model = TabularEpisodicControl(env=env, update_truncated=update_truncated, seed=0)
+    model = TabularEpisodicControl(env=env, ec_update_truncated=update_truncated, seed=0)
     model.learn(60)
     assert np.isfinite(model.ec_table).any() == update_truncated
 

@@ -29,6 +29,11 @@ from sb3_gcrl.two_memory.schedules import UNASSIGNED
 
 TINY_DQN = dict(
     learning_starts=20, buffer_size=2_000, batch_size=8, train_freq=4, target_update_interval=50,
+    policy_kwargs=dict(net_arch=[16]), ec_projection_dim=4, ec_capacity_per_action=500,
+)  # fmt: skip
+#: the same agent with stock DQN: the EC settings go to the policy, the schedule to TwoMemoryCallback
+STOCK_DQN = dict(
+    learning_starts=20, buffer_size=2_000, batch_size=8, train_freq=4, target_update_interval=50,
     policy_kwargs=dict(net_arch=[16], ec_projection_dim=4, ec_capacity_per_action=500),
 )  # fmt: skip
 
@@ -196,7 +201,7 @@ def test_data_sharing_routing_dqn(data_sharing):
     # RL runs every episode: with sharing MFEC learns from them, without it stays empty
     model = TwoMemoryDQN("MlpPolicy", Corridor(), p_ec_schedule=0.0, data_sharing=data_sharing, seed=0, **TINY_DQN)
     model.learn(200)
-    assert (len(model.policy.mfec) > 0) == data_sharing
+    assert (len(model.policy.memory) > 0) == data_sharing
     # EC runs every episode: without sharing the Q-network never trains
     model = TwoMemoryDQN("MlpPolicy", Corridor(), p_ec_schedule=1.0, data_sharing=data_sharing, seed=0, **TINY_DQN)
     before = [p.detach().clone() for p in model.q_net.parameters()]
@@ -204,7 +209,7 @@ def test_data_sharing_routing_dqn(data_sharing):
     changed = any(not th.equal(a, b) for a, b in zip(before, model.q_net.parameters()))
     assert changed == data_sharing
     assert model.replay_buffer.source_fraction(EPISODIC) == 1.0
-    assert len(model.policy.mfec) > 0
+    assert len(model.policy.memory) > 0
 
 
 def test_evaluation_uses_eq_5_6_memory():
@@ -238,15 +243,15 @@ def test_save_load_round_trip_dqn(tmp_path):
         np.testing.assert_array_equal(
             getattr(model.policy, memory)(th_obs, True).numpy(), getattr(loaded.policy, memory)(th_obs, True).numpy()
         )
-    np.testing.assert_array_equal(model.policy.mfec.estimate(np.eye(6)[:, :1].repeat(4, 1)),
-                                  loaded.policy.mfec.estimate(np.eye(6)[:, :1].repeat(4, 1)))  # fmt: skip
-    assert len(loaded.policy.mfec) == len(model.policy.mfec) > 0
+    np.testing.assert_array_equal(model.policy.memory.estimate(np.eye(6)[:, :1].repeat(4, 1)),
+                                  loaded.policy.memory.estimate(np.eye(6)[:, :1].repeat(4, 1)))  # fmt: skip
+    assert len(loaded.policy.memory) == len(model.policy.memory) > 0
     np.testing.assert_array_equal(loaded.policy.score_windows.returns, model.policy.score_windows.returns)
     np.testing.assert_array_equal(loaded.policy.score_windows.counts, model.policy.score_windows.counts)
     np.testing.assert_array_equal(loaded.policy.episode_counts, model.policy.episode_counts)
     np.testing.assert_array_equal(model.predict(observations, deterministic=True)[0],
                                   loaded.predict(observations, deterministic=True)[0])  # fmt: skip
-    assert loaded.data_sharing and loaded.policy.p_ec_schedule.decay == 300
+    assert loaded.data_sharing and loaded._p_ec_schedule.decay == 300 and loaded.p_ec == model.p_ec
     loaded.set_env(make_vec_env(Corridor, n_envs=2, seed=2))
     loaded.learn(100)  # training continues after loading
 
@@ -256,7 +261,7 @@ def test_seeding_is_deterministic_dqn():
     for _ in range(2):
         model = TwoMemoryDQN("MlpPolicy", Corridor(), p_ec_schedule=0.5, seed=7, **TINY_DQN)
         model.learn(250)
-        runs.append((model.policy.episode_counts.copy(), model.policy.mfec.state_dict(), model.q_net.state_dict()))
+        runs.append((model.policy.episode_counts.copy(), model.policy.memory.state_dict(), model.q_net.state_dict()))
     np.testing.assert_array_equal(runs[0][0], runs[1][0])
     for key, value in runs[0][1].items():
         np.testing.assert_array_equal(value, runs[1][1][key])
@@ -268,14 +273,14 @@ def test_two_memory_sac_dispatch_and_round_trip(tmp_path):
     env = make_vec_env(Slider, n_envs=2, seed=0)
     model = TwoMemorySAC(
         "MlpPolicy", env, p_ec_schedule=0.5, seed=0, learning_starts=20, batch_size=16, buffer_size=2_000,
-        policy_kwargs=dict(net_arch=[16], ec_distance_threshold=0.05, ec_update_truncated=True),
+        policy_kwargs=dict(net_arch=[16]), ec_distance_threshold=0.05, ec_update_truncated=True,
     )  # fmt: skip
     recorder = RecordDispatch()
     model.learn(300, callback=recorder)
     memories, dones = np.array(recorder.memories), np.array(recorder.dones)
     changes = memories[1:] != memories[:-1]
     assert not (changes & ~dones[:-1]).any()
-    assert model.policy.episode_counts.min() > 0 and len(model.policy.cec) > 0
+    assert model.policy.episode_counts.min() > 0 and len(model.policy.memory) > 0
     model.save(tmp_path / "2m_sac.zip")
     loaded = TwoMemorySAC.load(tmp_path / "2m_sac.zip")
     obs = np.linspace(-1, 2, 7, dtype=np.float32).reshape(-1, 1)
@@ -292,17 +297,14 @@ def test_stock_dqn_with_two_memory_policy_and_callback():
 
     from sb3_gcrl.two_memory import TwoMemoryCallback, TwoMemoryDQNPolicy
 
-    kwargs = {k: v for k, v in TINY_DQN.items() if k != "policy_kwargs"}
-    policy_kwargs = dict(TINY_DQN["policy_kwargs"], p_ec_schedule=0.5)
-    model = DQN(TwoMemoryDQNPolicy, make_vec_env(Corridor, n_envs=2, seed=0), policy_kwargs=policy_kwargs, seed=0,
-                **kwargs)  # fmt: skip
+    model = DQN(TwoMemoryDQNPolicy, make_vec_env(Corridor, n_envs=2, seed=0), seed=0, **STOCK_DQN)
     recorder = RecordDispatch()
-    model.learn(400, callback=[recorder, TwoMemoryCallback()])
+    model.learn(400, callback=[recorder, TwoMemoryCallback(p_ec_schedule=0.5)])
     memories, dones = np.array(recorder.memories), np.array(recorder.dones)
     # (-1: DQN's random warm-up step before the callback drew the episode's memory)
     both_assigned = (memories[1:] != UNASSIGNED) & (memories[:-1] != UNASSIGNED)
     assert not ((memories[1:] != memories[:-1]) & both_assigned & ~dones[:-1]).any()
-    assert model.policy.episode_counts.min() > 0 and len(model.policy.mfec) > 0
+    assert model.policy.episode_counts.min() > 0 and len(model.policy.memory) > 0
     assert model.policy.episode_counts.sum() == dones.sum()
     with pytest.raises(ValueError, match="already does the 2M bookkeeping"):
         TwoMemoryDQN("MlpPolicy", Corridor(), **TINY_DQN).learn(10, callback=TwoMemoryCallback())
@@ -382,11 +384,11 @@ def test_two_memory_sac_writes_truncated_episodes_by_default(update_truncated):
     # finished episode (Algorithm 1 / 2), so by default CEC must fill up, as standalone CEC does.
     kwargs = dict(TINY_SAC)
     if update_truncated is not None:
-        kwargs["policy_kwargs"] = dict(net_arch=[16], ec_update_truncated=update_truncated)
+        kwargs["ec_update_truncated"] = update_truncated
     model = TwoMemorySAC("MlpPolicy", Slider(), p_ec_schedule=1.0, seed=0, **kwargs)
     model.learn(60)
     assert model.policy.episode_counts[EPISODIC] == 6
-    assert (len(model.policy.cec) > 0) == (update_truncated is not False)
+    assert (len(model.policy.memory) > 0) == (update_truncated is not False)
 
 
 def _make_ec_the_evaluation_memory(model):
@@ -416,11 +418,11 @@ def test_deterministic_predict_with_ec_is_deterministic(algorithm):
 
 
 def test_constructors_do_not_mutate_the_callers_kwargs():
-    policy_kwargs = dict(net_arch=[16], ec_projection_dim=4)
+    policy_kwargs = dict(net_arch=[16])
     replay_buffer_kwargs = dict(handle_timeout_termination=True)
-    TwoMemoryDQN("MlpPolicy", Corridor(), data_sharing=False, policy_kwargs=policy_kwargs,
+    TwoMemoryDQN("MlpPolicy", Corridor(), data_sharing=False, policy_kwargs=policy_kwargs, ec_projection_dim=4,
                  replay_buffer_kwargs=replay_buffer_kwargs, learning_starts=10, buffer_size=100)  # fmt: skip
-    assert policy_kwargs == dict(net_arch=[16], ec_projection_dim=4)
+    assert policy_kwargs == dict(net_arch=[16])
     assert replay_buffer_kwargs == dict(handle_timeout_termination=True)
     sac_kwargs = dict(net_arch=[16])
     TwoMemorySAC("MlpPolicy", Slider(), policy_kwargs=sac_kwargs, learning_starts=10, buffer_size=100)
@@ -430,23 +432,22 @@ def test_constructors_do_not_mutate_the_callers_kwargs():
 def test_defaults_have_one_place():
     from stable_baselines3 import DQN
 
-    from sb3_gcrl.two_memory import TwoMemoryCallback, TwoMemoryDQNPolicy, TwoMemorySACPolicy
+    from sb3_gcrl.two_memory import TwoMemoryCallback, TwoMemoryDQNPolicy
     from sb3_gcrl.two_memory.schedules import DEFAULT_P_EC_SCHEDULE
 
     # Table 5.1's decayed schedule, the same for the algorithm and for its policy used with stock DQN
     algorithm = TwoMemoryDQN("MlpPolicy", Corridor(), gamma=0.9, **TINY_DQN)
-    kwargs = {k: v for k, v in TINY_DQN.items() if k != "policy_kwargs"}
-    stock = DQN(TwoMemoryDQNPolicy, Corridor(), gamma=0.9, policy_kwargs=TINY_DQN["policy_kwargs"], **kwargs)
-    for policy in (algorithm.policy, stock.policy):
-        schedule = policy.p_ec_schedule
+    stock = DQN(TwoMemoryDQNPolicy, Corridor(), gamma=0.9, **STOCK_DQN)
+    callback = TwoMemoryCallback()
+    for schedule in (algorithm._p_ec_schedule, callback.p_ec_schedule):
         assert (schedule.start, schedule.end, schedule.decay) == (0.9, 0.1, 500_000)
     assert DEFAULT_P_EC_SCHEDULE == {"type": "decayed", "start": 0.9, "end": 0.1, "decay": 500_000}
     # ec_gamma defaults to the algorithm's gamma on both paths
     assert algorithm.policy.ec_gamma == 0.9
-    stock.learn(30, callback=TwoMemoryCallback())
+    stock.learn(30, callback=callback)
     assert stock.policy.ec_gamma == 0.9
     sac = TwoMemorySAC("MlpPolicy", Slider(), **TINY_SAC)
-    assert sac.policy.p_ec_schedule.decay == TwoMemorySACPolicy.default_p_ec_schedule["decay"]
+    assert sac._p_ec_schedule.decay == TwoMemorySAC.default_p_ec_schedule["decay"] == 50_000
 
 
 @pytest.mark.parametrize("algorithm", ["dqn", "sac"])
@@ -475,7 +476,7 @@ def test_set_random_seed_after_load_is_reproducible(tmp_path):
         assert copy.policy.evaluation_memory() == EPISODIC
         actions = [copy.predict(obs, deterministic=False)[0] for _ in range(3)]
         copy.learn(100)
-        runs.append((actions, copy.policy.cec.state_dict(), copy.actor.state_dict()))
+        runs.append((actions, copy.policy.memory.state_dict(), copy.actor.state_dict()))
     for a, b in zip(runs[0][0], runs[1][0]):
         np.testing.assert_array_equal(a, b)
     for key, value in runs[0][1].items():

@@ -3,20 +3,18 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
+from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_gcrl.cec.policies import CECPolicy
-from sb3_gcrl.memory.control import EpisodicControlAlgorithm
+from sb3_gcrl.common.episodic_control import EpisodicControlAlgorithm
 from sb3_gcrl.memory.knn import KNNBackend
 from sb3_gcrl.memory.validation import check_float, check_int
-
-SelfCEC = TypeVar("SelfCEC", bound="CEC")
 
 
 class CEC(EpisodicControlAlgorithm):
@@ -146,14 +144,3 @@ class CEC(EpisodicControlAlgorithm):
 
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
         return self.policy.memory.update_episode(keys, actions.reshape(len(actions), -1), returns)
-
-    def learn(
-        self: SelfCEC,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 10,
-        tb_log_name: str = "CEC",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfCEC:
-        return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)

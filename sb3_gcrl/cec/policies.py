@@ -8,8 +8,9 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from sb3_gcrl.common.actors import cec_actions
+from sb3_gcrl.common.episodic_control import EpisodicControlPolicy
 from sb3_gcrl.memory.cec_memory import CECMemory
-from sb3_gcrl.memory.control import EpisodicControlPolicy
 from sb3_gcrl.memory.knn import KNNBackend
 from sb3_gcrl.memory.validation import check_float
 
@@ -76,21 +77,12 @@ class CECPolicy(EpisodicControlPolicy):
         self._high = action_space.high.astype(np.float32).reshape(-1)
 
     def act(self, keys: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Actions ``(n, *action_shape)`` for keys ``(n, key_dim)`` and the mask of memory hits."""
-        n = len(keys)
-        if deterministic:
-            actions, found = self.memory.greedy_actions(keys)
-            if not found.all():
-                actions[~found] = (self._low + self._high) / 2
-        else:
-            actions, found = self.memory.select_actions(keys, self.rng)
-            noisy = found & (self.rng.random(n) < self.exploration_rate)
-            if noisy.any():
-                actions[noisy] += self.rng.normal(0.0, self.noise_std, size=(int(noisy.sum()), actions.shape[1]))
-            if not found.all():
-                actions[~found] = self.rng.uniform(self._low, self._high, size=(int((~found).sum()), len(self._low)))
-            np.clip(actions, self._low, self._high, out=actions)
-        return actions.reshape(n, *self.action_space.shape), found
+        """Actions ``(n, *action_shape)`` for keys ``(n, key_dim)`` and the mask of memory hits
+        (:func:`~sb3_gcrl.common.actors.cec_actions`)."""
+        actions, found = cec_actions(
+            self.memory, keys, self._low, self._high, self.rng, deterministic, self.exploration_rate, self.noise_std
+        )
+        return actions.reshape(len(keys), *self.action_space.shape), found
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()

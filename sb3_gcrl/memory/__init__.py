@@ -13,10 +13,11 @@ Public API (all batched over queries; keys are ``(n, key_dim)`` float32 arrays):
 * :class:`KNNIndex` — exact Euclidean kNN over a preallocated, row-overwritable table
   (lazily rebuilt KD-tree + brute-forced delta, or faiss brute force).
 * :class:`RecencyOrder` — O(1) least-recently-updated eviction order.
-* :class:`EpisodeBuffers`, :func:`discounted_returns` — per-env running episodes and their returns.
+* :class:`EpisodeBuffers`, :func:`discounted_returns` — per-env running episodes and their returns (the one
+  episode layer of CEC, MFEC, the 2M agents and tabular episodic control).
 
 Hyperparameters and saved states are checked by :mod:`sb3_gcrl.memory.validation` (errors name the
-parameter); the SB3 base classes of CEC and MFEC are in :mod:`sb3_gcrl.memory.control`.
+parameter); the SB3 base classes of CEC and MFEC, and the actors shared with 2M, are in :mod:`sb3_gcrl.common`.
 """
 
 from sb3_gcrl.memory.cec_memory import CECMemory

@@ -3,20 +3,18 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
+from stable_baselines3.common.type_aliases import GymEnv
 
-from sb3_gcrl.memory.control import EpisodicControlAlgorithm
+from sb3_gcrl.common.episodic_control import EpisodicControlAlgorithm
 from sb3_gcrl.memory.knn import KNNBackend
 from sb3_gcrl.memory.validation import check_int
 from sb3_gcrl.mfec.policies import MFECPolicy
-
-SelfMFEC = TypeVar("SelfMFEC", bound="MFEC")
 
 
 class MFEC(EpisodicControlAlgorithm):
@@ -119,14 +117,3 @@ class MFEC(EpisodicControlAlgorithm):
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
         added = self.policy.memory.update_episode(keys, actions - self.policy.action_start, returns)
         return {"added": added, "updated": len(keys) - added}
-
-    def learn(
-        self: SelfMFEC,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 10,
-        tb_log_name: str = "MFEC",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfMFEC:
-        return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)

@@ -8,9 +8,10 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from sb3_gcrl.memory.control import EpisodicControlPolicy
+from sb3_gcrl.common.actors import mfec_actions
+from sb3_gcrl.common.episodic_control import EpisodicControlPolicy
 from sb3_gcrl.memory.knn import KNNBackend
-from sb3_gcrl.memory.mfec_memory import MFECMemory, argmax_random_ties
+from sb3_gcrl.memory.mfec_memory import MFECMemory
 
 
 class MFECPolicy(EpisodicControlPolicy):
@@ -65,15 +66,9 @@ class MFECPolicy(EpisodicControlPolicy):
         return self.memory.estimate(keys)
 
     def act(self, keys: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Actions ``(n,)`` and the mask of queries whose chosen action had a finite estimate."""
-        q = self.memory.estimate(keys)
-        n, n_actions = q.shape
-        actions = argmax_random_ties(q, None if deterministic else self.rng)
-        if not deterministic:
-            explore = self.rng.random(n) < self.exploration_rate
-            if explore.any():
-                actions[explore] = self.rng.integers(n_actions, size=int(explore.sum()))
-        known = np.isfinite(q[np.arange(n), actions])
+        """Actions ``(n,)`` and the mask of queries whose chosen action had a finite estimate
+        (:func:`~sb3_gcrl.common.actors.mfec_actions`)."""
+        actions, known = mfec_actions(self.memory, keys, self.rng, deterministic, self.exploration_rate)
         return actions + self.action_start, known
 
     def _get_constructor_parameters(self) -> dict[str, Any]:

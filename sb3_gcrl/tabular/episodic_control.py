@@ -8,9 +8,9 @@ import numpy as np
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 
+from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
 from sb3_gcrl.tabular.policies import TabularECPolicy
 from sb3_gcrl.tabular.tabular_algorithm import TabularAlgorithm
-from sb3_gcrl.two_memory.episodes import EpisodeRecorder, discounted_returns
 from sb3_gcrl.two_memory.schedules import check_unit_interval
 
 
@@ -22,7 +22,7 @@ class TabularEpisodicControl(TabularAlgorithm):
     :param policy: policy class or alias.
     :param env: env with Discrete observation and action spaces.
     :param ec_gamma: discount of the stored returns (None: ``gamma``).
-    :param update_truncated: also learn from time-limit-truncated episodes (thesis Eq. 5.2 / Algorithm 2: the
+    :param ec_update_truncated: also learn from time-limit-truncated episodes (thesis Eq. 5.2 / Algorithm 2: the
         update runs on every finished episode). With ``False`` a cut episode writes nothing; then an agent that
         has not reached a terminal state yet never learns at all (its optimistic unvisited entries stay
         untouched). With ``True`` the partial returns of cut episodes enter the max; with negative step rewards
@@ -39,16 +39,16 @@ class TabularEpisodicControl(TabularAlgorithm):
         policy: str | type[BasePolicy] = "TabularECPolicy",
         env: Any = None,
         ec_gamma: float | None = None,
-        update_truncated: bool = True,
+        ec_update_truncated: bool = True,
         **kwargs: Any,
     ) -> None:
         kwargs.setdefault("buffer_size", 1)
         if ec_gamma is not None:
             check_unit_interval("ec_gamma", ec_gamma)
         self.ec_gamma = ec_gamma
-        self.update_truncated = update_truncated
+        self.ec_update_truncated = ec_update_truncated
         super().__init__(policy, env, **kwargs)
-        self._recorder: EpisodeRecorder | None = None
+        self._episodes: EpisodeBuffers | None = None
 
     @property
     def ec_table(self) -> np.ndarray:
@@ -57,8 +57,8 @@ class TabularEpisodicControl(TabularAlgorithm):
     def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
         previous_obs = self._last_obs
         result = super()._setup_learn(*args, **kwargs)
-        if self._last_obs is not previous_obs or self._recorder is None:
-            self._recorder = EpisodeRecorder(self.n_envs, (), np.int64, (), np.int64)
+        if self._last_obs is not previous_obs or self._episodes is None:
+            self._episodes = EpisodeBuffers(self.n_envs, (), (), np.int64, key_dtype=np.int64)
         return result
 
     def _store_transition(
@@ -71,12 +71,12 @@ class TabularEpisodicControl(TabularAlgorithm):
         infos: list[dict[str, Any]],
     ) -> None:
         # No replay: record the step, update the table at episode ends.
-        assert self._recorder is not None
-        self._recorder.add(np.asarray(self._last_obs).reshape(-1), np.asarray(buffer_action).reshape(-1), reward)
+        assert self._episodes is not None
+        self._episodes.add(np.asarray(self._last_obs).reshape(-1), np.asarray(buffer_action).reshape(-1), reward)
         gamma = self.gamma if self.ec_gamma is None else self.ec_gamma
         for env_index in np.flatnonzero(dones):
-            states, actions, rewards = self._recorder.pop(env_index)
-            if infos[env_index].get("TimeLimit.truncated", False) and not self.update_truncated:
+            states, actions, rewards = self._episodes.pop(env_index)
+            if infos[env_index].get("TimeLimit.truncated", False) and not self.ec_update_truncated:
                 continue
             self.policy.update_episode(states, actions, discounted_returns(rewards, gamma))
         self._last_obs = new_obs
@@ -86,4 +86,4 @@ class TabularEpisodicControl(TabularAlgorithm):
         self.logger.record("train/ec_visited_fraction", float(np.isfinite(self.ec_table).mean()))
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_recorder"]
+        return [*super()._excluded_save_params(), "_episodes"]

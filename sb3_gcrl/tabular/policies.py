@@ -15,7 +15,6 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 
 from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatchMixin
-from sb3_gcrl.two_memory.schedules import PecSchedule
 
 
 def check_tabular_spaces(observation_space: spaces.Space, action_space: spaces.Space, who: str) -> tuple[int, int]:
@@ -168,8 +167,6 @@ class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, TabularBasePolicy):
     :param observation_space: Discrete state space.
     :param action_space: Discrete action space.
     :param lr_schedule: unused; kept for SB3's policy signature.
-    :param p_ec_schedule: p_ec schedule (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`); ``None``:
-        :attr:`default_p_ec_schedule`, the authors' tabular 0.9 -> 0.01 over tau = 2e4 steps (Eq. 5.5).
     :param data_sharing: update the EC table with every episode (True, thesis) or only with its own.
     :param score_window: n of Eq. 5.6.
     :param ec_gamma: discount of the returns stored in the EC table (``None``: the algorithm's ``gamma``).
@@ -179,14 +176,13 @@ class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, TabularBasePolicy):
     :param initial_q: initial Q-value.
     """
 
-    default_p_ec_schedule: dict[str, Any] = {"type": "decayed", "start": 0.9, "end": 0.01, "decay": 20_000}  # noqa: RUF012
+    ec_parameters = (*TwoMemoryDispatchMixin.ec_parameters, "unseen_value", "initial_q")  # noqa: RUF012
 
     def __init__(
         self,
         observation_space: spaces.Space,
         action_space: spaces.Space,
         lr_schedule: Schedule | None = None,
-        p_ec_schedule: PecSchedule | float | str | dict[str, Any] | None = None,
         data_sharing: bool = True,
         score_window: int = 50,
         ec_gamma: float | None = None,
@@ -197,21 +193,9 @@ class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, TabularBasePolicy):
         TabularBasePolicy.__init__(self, observation_space, action_space)
         self.ec_policy = TabularECPolicy(observation_space, action_space, unseen_value=unseen_value)
         self.q_policy = TabularQPolicy(observation_space, action_space, initial_value=initial_q)
-        self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated)
-        self._constructor_kwargs = dict(
-            p_ec_schedule=p_ec_schedule,
-            data_sharing=data_sharing,
-            score_window=score_window,
-            ec_gamma=ec_gamma,
-            ec_update_truncated=ec_update_truncated,
-            unseen_value=unseen_value,
-            initial_q=initial_q,
-        )
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(self._constructor_kwargs)
-        return data
+        self.unseen_value = self.ec_policy.unseen_value
+        self.initial_q = self.q_policy.initial_value
+        self._init_dispatch(data_sharing, score_window, ec_gamma, ec_update_truncated)
 
     @property
     def q_table(self) -> np.ndarray:

@@ -8,9 +8,10 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
+from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.tabular.policies import check_tabular_spaces
 from sb3_gcrl.two_memory.schedules import check_unit_interval
 
@@ -62,7 +63,7 @@ def check_tabular_hyperparameters(
             raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
 
 
-class TabularAlgorithm(OffPolicyAlgorithm):
+class TabularAlgorithm(ClassNamedRunsMixin, OffPolicyAlgorithm):
     """Off-policy tabular agent with epsilon-greedy exploration drawn per env (SB3's DQN draws one coin per batch).
 
     Defaults follow the authors' tabular 2M code (public repo yangzhao-666/2m): replay buffer 5e4, batch 32 every
@@ -179,27 +180,6 @@ class TabularAlgorithm(OffPolicyAlgorithm):
             explore = np.random.random(n_envs) < self.exploration_rate
             actions[explore] = np.random.randint(self.action_space.n, size=int(explore.sum()))
         return actions, actions
-
-    def learn(
-        self: SelfTabularAlgorithm,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 4,
-        tb_log_name: str | None = None,
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfTabularAlgorithm:
-        """SB3's ``learn``; the TensorBoard run is named after the class (``TabularQLearning_1``) unless
-        ``tb_log_name`` is given.
-        """
-        return super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=type(self).__name__ if tb_log_name is None else tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "exploration_schedule"]

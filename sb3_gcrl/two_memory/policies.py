@@ -1,7 +1,8 @@
 """2M hybrid policies: an episodic memory (MFEC or CEC) and an SB3 network (DQN or SAC) behind one dispatch.
 
 The dispatch (which memory acts per episode and env, score windows, evaluation memory of Eq. 5.6) comes from
-:class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryDispatchMixin`; the memories come from :mod:`sb3_gcrl.memory`.
+:class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryDispatchMixin`; the memories come from :mod:`sb3_gcrl.memory` and act
+as in standalone CEC / MFEC (:mod:`sb3_gcrl.common.actors`).
 Everything is in the policy's ``state_dict`` (the episodic table through ``get_extra_state``, used rows only), so
 ``save``/``load`` restore the table, the network and the score windows exactly.
 """
@@ -19,11 +20,11 @@ from stable_baselines3.dqn.policies import DQNPolicy
 from stable_baselines3.sac.policies import SACPolicy
 from torch import nn
 
+from sb3_gcrl.common.actors import cec_actions, mfec_actions
+from sb3_gcrl.common.episodic_control import load_memory_state, memory_state
 from sb3_gcrl.memory import CECMemory, KeyEmbedding, MFECMemory
+from sb3_gcrl.memory.validation import check_float
 from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatchMixin
-from sb3_gcrl.two_memory.schedules import PecSchedule
-
-PecSpec = PecSchedule | float | str | dict[str, Any]
 
 
 class MinAtarCNN(BaseFeaturesExtractor):
@@ -68,29 +69,64 @@ class MinAtarDQNPolicy(DQNPolicy):
         super().__init__(*args, **kwargs)
 
 
-def _to_tensors(state: dict[str, Any], prefix: str) -> dict[str, th.Tensor]:
-    return {f"{prefix}{k}": th.as_tensor(np.asarray(v).copy()) for k, v in state.items()}
+class KeyedMemoryDispatchMixin(TwoMemoryDispatchMixin):
+    """2M dispatch whose episodic half is a kNN memory (MFEC or CEC) keyed by a :class:`~sb3_gcrl.memory.KeyEmbedding`:
+    the memory (``self.memory``), its embedding, its generator (``self.rng``) and their save/restore, shared by the
+    DQN and SAC flavours."""
+
+    memory: Any
+    embedding: KeyEmbedding
+
+    def _init_keyed_memory(self, ec_projection_dim: int | None, ec_seed: int | None, knn_backend: str) -> int:
+        """Build the embedding and the generator; keep the settings as attributes.
+
+        :param ec_projection_dim: random-projection dimension of the keys (None: no projection).
+        :param ec_seed: seed of the projection and of the EC generator (None: drawn from numpy's global generator,
+            which SB3 seeds).
+        :param knn_backend: kNN backend of the memory.
+        :return: the seed used.
+        """
+        if ec_seed is None:
+            ec_seed = int(np.random.randint(2**31 - 1))
+        self.ec_projection_dim = ec_projection_dim
+        self.ec_seed = ec_seed
+        self.knn_backend = knn_backend
+        self.embedding = KeyEmbedding(self.observation_space, projection_dim=ec_projection_dim, seed=ec_seed)  # type: ignore[attr-defined]
+        self.rng = np.random.default_rng(ec_seed)
+        return ec_seed
+
+    def set_seed(self, seed: int | None) -> None:
+        """Reseed the EC generator (tie-breaking, Eq. 4.5 sampling, exploration); the projection matrix stays.
+
+        :param seed: seed.
+        """
+        self.rng = np.random.default_rng(seed)
+
+    def _keys(self, observation: th.Tensor | dict[str, th.Tensor]) -> np.ndarray:
+        if isinstance(observation, dict):
+            return self.embedding({k: v.cpu().numpy() for k, v in observation.items()})
+        return self.embedding(observation.cpu().numpy())
+
+    def _episode_features(self, observations: Any) -> np.ndarray:
+        return self.embedding(observations)
+
+    def _episodic_state(self) -> dict[str, th.Tensor]:
+        return memory_state(self.memory, self.embedding)
+
+    def _load_episodic_state(self, state: dict[str, th.Tensor]) -> None:
+        load_memory_state(self, self.memory, self.embedding, state)
 
 
-def _from_tensors(state: dict[str, th.Tensor], prefix: str) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in state.items():
-        if key.startswith(prefix):
-            array = value.numpy()
-            out[key[len(prefix) :]] = array.item() if array.ndim == 0 else array
-    return out
-
-
-class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
+class TwoMemoryDQNPolicy(KeyedMemoryDispatchMixin, DQNPolicy):
     """2M policy for discrete actions: an MFEC table (2M-EC) and a DQN Q-network (2M-RL), thesis Ch. 5.
 
     MFEC keys are a seeded Gaussian random projection of the flattened observation (8 dims in the authors' code).
+    MFEC acts greedily (:func:`~sb3_gcrl.common.actors.mfec_actions`, untried actions first, ties broken at random
+    while training); epsilon-greedy exploration is drawn per env by the algorithm, on both memories.
 
     :param observation_space: observation space.
     :param action_space: Discrete action space.
     :param lr_schedule: learning rate schedule of the Q-network.
-    :param p_ec_schedule: p_ec schedule (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`); ``None``:
-        :attr:`default_p_ec_schedule`, Eq. 5.5 with the thesis's decayed 0.9 -> 0.1 (Table 5.1) and tau = 5e5 steps.
     :param data_sharing: update MFEC with every episode (thesis) or only with its own (2Mw/oDS).
     :param score_window: n of Eq. 5.6.
     :param ec_gamma: discount of the returns stored in MFEC (``None``: the algorithm's ``gamma``).
@@ -104,12 +140,21 @@ class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
     :param kwargs: :class:`~stable_baselines3.dqn.policies.DQNPolicy` arguments (net_arch, features extractor...).
     """
 
+    ec_parameters = (  # noqa: RUF012
+        *TwoMemoryDispatchMixin.ec_parameters,
+        "ec_projection_dim",
+        "ec_capacity_per_action",
+        "ec_n_neighbors",
+        "ec_seed",
+        "knn_backend",
+    )
+    memory: MFECMemory
+
     def __init__(
         self,
         observation_space: spaces.Space,
         action_space: spaces.Discrete,
         lr_schedule: Schedule,
-        p_ec_schedule: PecSpec | None = None,
         data_sharing: bool = True,
         score_window: int = 50,
         ec_gamma: float | None = None,
@@ -122,66 +167,30 @@ class TwoMemoryDQNPolicy(TwoMemoryDispatchMixin, DQNPolicy):
         **kwargs: Any,
     ) -> None:
         DQNPolicy.__init__(self, observation_space, action_space, lr_schedule, **kwargs)
-        self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated)
-        if ec_seed is None:
-            ec_seed = int(np.random.randint(2**31 - 1))
+        self._init_dispatch(data_sharing, score_window, ec_gamma, ec_update_truncated)
+        self._init_keyed_memory(ec_projection_dim, ec_seed, knn_backend)
         n_actions = int(action_space.n)
         if ec_capacity_per_action is None:
             ec_capacity_per_action = max(100_000 // (2 * n_actions), 1)
-        self.embedding = KeyEmbedding(observation_space, projection_dim=ec_projection_dim, seed=ec_seed)
-        self.mfec = MFECMemory(
+        self.ec_capacity_per_action = ec_capacity_per_action
+        self.ec_n_neighbors = ec_n_neighbors
+        self.memory = MFECMemory(
             self.embedding.key_dim,
             n_actions,
             capacity_per_action=ec_capacity_per_action,
             n_neighbors=ec_n_neighbors,
             knn_backend=knn_backend,  # type: ignore[arg-type]
         )
-        self._tie_rng = np.random.default_rng(ec_seed)
-        self._two_memory_kwargs = dict(
-            p_ec_schedule=p_ec_schedule,
-            data_sharing=data_sharing,
-            score_window=score_window,
-            ec_gamma=ec_gamma,
-            ec_update_truncated=ec_update_truncated,
-            ec_projection_dim=ec_projection_dim,
-            ec_capacity_per_action=ec_capacity_per_action,
-            ec_n_neighbors=ec_n_neighbors,
-            ec_seed=ec_seed,
-            knn_backend=knn_backend,
-        )
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(self._two_memory_kwargs)
-        return data
-
-    def set_seed(self, seed: int | None) -> None:
-        """Reseed the generator that breaks ties between untried actions (the projection matrix stays).
-
-        :param seed: seed.
-        """
-        self._tie_rng = np.random.default_rng(seed)
 
     def _episodic_actions(self, observation: th.Tensor, deterministic: bool) -> th.Tensor:
-        keys = self.embedding(observation.cpu().numpy())
-        # untried actions are estimated +inf: break those ties at random while training
-        return th.as_tensor(self.mfec.greedy_actions(keys, None if deterministic else self._tie_rng))
+        actions, _ = mfec_actions(self.memory, self._keys(observation), self.rng, deterministic, epsilon=0.0)
+        return th.as_tensor(actions)
 
     def _parametric_actions(self, observation: th.Tensor, deterministic: bool) -> th.Tensor:
         return self.q_net._predict(observation, deterministic=True)
 
-    def _episode_features(self, observations: Any) -> np.ndarray:
-        return self.embedding(observations)
-
     def update_episodic_memory(self, features: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> None:
-        self.mfec.update_episode(features, actions, returns)
-
-    def _episodic_state(self) -> dict[str, th.Tensor]:
-        return {**_to_tensors(self.mfec.state_dict(), "mfec/"), **_to_tensors(self.embedding.get_state(), "embedding/")}
-
-    def _load_episodic_state(self, state: dict[str, th.Tensor]) -> None:
-        self.embedding.set_state(_from_tensors(state, "embedding/"))
-        self.mfec.load_state_dict(_from_tensors(state, "mfec/"))
+        self.memory.update_episode(features, actions, returns)
 
 
 class TwoMemoryMinAtarPolicy(TwoMemoryDQNPolicy):
@@ -193,21 +202,19 @@ class TwoMemoryMinAtarPolicy(TwoMemoryDQNPolicy):
         super().__init__(*args, **kwargs)
 
 
-class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
+class TwoMemorySACPolicy(KeyedMemoryDispatchMixin, SACPolicy):
     """2M policy for continuous actions: a CEC memory (2M-EC, thesis Ch. 4) and a SAC actor (2M-RL).
 
     Not in the thesis: 2M with CEC and SAC is this package's extension of Ch. 5 to continuous actions. CEC stores
-    actions scaled to [-1, 1] (the space the SAC actor and the replay buffer use). While training, an EC-run step
-    takes a uniformly random action with probability ``ec_epsilon`` or when no stored state lies within n*d
-    (Algorithm 1), else the Eq. 4.5 sample plus Gaussian noise of std ``ec_noise_std``; evaluation
-    (``deterministic=True``) takes the nearest row's action, and an empty memory answers the middle of the action
-    space (as standalone CEC does), so deterministic predictions never draw random numbers.
+    actions scaled to [-1, 1] (the space the SAC actor and the replay buffer use) and acts as standalone CEC does
+    (:func:`~sb3_gcrl.common.actors.cec_actions`, thesis Algorithm 1): while training, the Eq. 4.5 sample plus
+    Gaussian noise of std ``ec_noise_std`` with probability ``ec_epsilon``, or a uniformly random action when no
+    stored state lies within n*d; evaluation (``deterministic=True``) takes the nearest row's action, and an empty
+    memory answers the middle of the action space, so deterministic predictions never draw random numbers.
 
     :param observation_space: observation space (Box, or Dict for goal envs: observation + desired_goal keys).
     :param action_space: Box action space.
     :param lr_schedule: learning rate schedule of SAC.
-    :param p_ec_schedule: p_ec schedule; ``None``: :attr:`default_p_ec_schedule`, Eq. 5.5 with 0.9 -> 0.1 (Table
-        5.1's decayed schedule) and tau = 5e4 steps (ours: scaled to the 1e5-step budgets of Ch. 4's tasks).
     :param data_sharing: update CEC with every episode or only with its own.
     :param score_window: n of Eq. 5.6.
     :param ec_gamma: discount of the returns stored in CEC (``None``: the algorithm's ``gamma``).
@@ -219,21 +226,34 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
     :param ec_filter_factor: n of Table 4.4.
     :param ec_n_neighbors: k of Table 4.4.
     :param ec_temperature: tau of Eq. 4.5.
-    :param ec_epsilon: probability of a uniformly random EC action while training.
-    :param ec_noise_std: std of the Gaussian noise on EC actions while training (in [-1, 1] units).
+    :param ec_epsilon: epsilon of Algorithm 1: probability of adding the Gaussian noise to an EC action while
+        training.
+    :param ec_noise_std: sigma of Algorithm 1: std of that noise (in [-1, 1] units).
     :param ec_seed: seed of the projection and of the EC sampling generator.
     :param knn_backend: kNN backend of the CEC memory.
     :param kwargs: :class:`~stable_baselines3.sac.policies.SACPolicy` arguments.
     """
 
-    default_p_ec_schedule: dict[str, Any] = {"type": "decayed", "start": 0.9, "end": 0.1, "decay": 50_000}  # noqa: RUF012
+    ec_parameters = (  # noqa: RUF012
+        *TwoMemoryDispatchMixin.ec_parameters,
+        "ec_projection_dim",
+        "ec_capacity",
+        "ec_distance_threshold",
+        "ec_filter_factor",
+        "ec_n_neighbors",
+        "ec_temperature",
+        "ec_epsilon",
+        "ec_noise_std",
+        "ec_seed",
+        "knn_backend",
+    )
+    memory: CECMemory
 
     def __init__(
         self,
         observation_space: spaces.Space,
         action_space: spaces.Box,
         lr_schedule: Schedule,
-        p_ec_schedule: PecSpec | None = None,
         data_sharing: bool = True,
         score_window: int = 50,
         ec_gamma: float | None = None,
@@ -251,17 +271,11 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
         **kwargs: Any,
     ) -> None:
         SACPolicy.__init__(self, observation_space, action_space, lr_schedule, **kwargs)
-        self._init_dispatch(p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated)
-        if not 0.0 <= ec_epsilon <= 1.0:
-            raise ValueError(f"ec_epsilon must be in [0, 1], got {ec_epsilon}")
-        if ec_noise_std < 0:
-            raise ValueError(f"ec_noise_std must be >= 0, got {ec_noise_std}")
-        if ec_seed is None:
-            ec_seed = int(np.random.randint(2**31 - 1))
-        self.ec_epsilon = float(ec_epsilon)
-        self.ec_noise_std = float(ec_noise_std)
-        self.embedding = KeyEmbedding(observation_space, projection_dim=ec_projection_dim, seed=ec_seed)
-        self.cec = CECMemory(
+        self._init_dispatch(data_sharing, score_window, ec_gamma, ec_update_truncated)
+        self.ec_epsilon = check_float("ec_epsilon", ec_epsilon, 0.0, 1.0)
+        self.ec_noise_std = check_float("ec_noise_std", ec_noise_std, 0.0)
+        self._init_keyed_memory(ec_projection_dim, ec_seed, knn_backend)
+        self.memory = CECMemory(
             self.embedding.key_dim,
             int(np.prod(action_space.shape)),
             capacity=ec_capacity,
@@ -271,71 +285,33 @@ class TwoMemorySACPolicy(TwoMemoryDispatchMixin, SACPolicy):
             temperature=ec_temperature,
             knn_backend=knn_backend,  # type: ignore[arg-type]
         )
-        self._ec_rng = np.random.default_rng(ec_seed)
-        self._two_memory_kwargs = dict(
-            p_ec_schedule=p_ec_schedule,
-            data_sharing=data_sharing,
-            score_window=score_window,
-            ec_gamma=ec_gamma,
-            ec_update_truncated=ec_update_truncated,
-            ec_projection_dim=ec_projection_dim,
-            ec_capacity=ec_capacity,
-            ec_distance_threshold=ec_distance_threshold,
-            ec_filter_factor=ec_filter_factor,
-            ec_n_neighbors=ec_n_neighbors,
-            ec_temperature=ec_temperature,
-            ec_epsilon=ec_epsilon,
-            ec_noise_std=ec_noise_std,
-            ec_seed=ec_seed,
-            knn_backend=knn_backend,
-        )
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(self._two_memory_kwargs)
-        return data
-
-    def set_seed(self, seed: int | None) -> None:
-        """Reseed the generator of EC-run exploration and Eq. 4.5 sampling (the projection matrix stays).
-
-        :param seed: seed.
-        """
-        self._ec_rng = np.random.default_rng(seed)
-
-    def _numpy_obs(self, observation: th.Tensor | dict[str, th.Tensor]) -> np.ndarray | dict[str, np.ndarray]:
-        if isinstance(observation, dict):
-            return {k: v.cpu().numpy() for k, v in observation.items()}
-        return observation.cpu().numpy()
+        self.ec_capacity = ec_capacity
+        self.ec_distance_threshold = ec_distance_threshold
+        self.ec_filter_factor = ec_filter_factor
+        self.ec_n_neighbors = ec_n_neighbors
+        self.ec_temperature = ec_temperature
+        action_dim = int(np.prod(action_space.shape))
+        self._unit_low = -np.ones(action_dim, dtype=np.float32)
+        self._unit_high = np.ones(action_dim, dtype=np.float32)
 
     def _episodic_actions(self, observation: th.Tensor, deterministic: bool) -> th.Tensor:
-        keys = self.embedding(self._numpy_obs(observation))
-        if deterministic:
-            actions, found = self.cec.greedy_actions(keys)
-        else:
-            actions, found = self.cec.select_actions(keys, self._ec_rng)
-            actions = np.clip(actions + self.ec_noise_std * self._ec_rng.standard_normal(actions.shape), -1, 1)
-        if deterministic:
-            # greedy_actions answers 0 (the middle of the scaled action space) where the memory is empty
-            return th.as_tensor(actions.reshape((-1, *self.action_space.shape)), dtype=th.float32)
-        random_rows = ~found | (self._ec_rng.random(len(keys)) < self.ec_epsilon)
-        actions[random_rows] = self._ec_rng.uniform(-1.0, 1.0, size=(int(random_rows.sum()), actions.shape[1]))
+        actions, _ = cec_actions(
+            self.memory,
+            self._keys(observation),
+            self._unit_low,
+            self._unit_high,
+            self.rng,
+            deterministic,
+            self.ec_epsilon,
+            self.ec_noise_std,
+        )
         return th.as_tensor(actions.reshape((-1, *self.action_space.shape)), dtype=th.float32)
 
     def _parametric_actions(self, observation: th.Tensor, deterministic: bool) -> th.Tensor:
         return self.actor(observation, deterministic=deterministic)
 
-    def _episode_features(self, observations: Any) -> np.ndarray:
-        return self.embedding(observations)
-
     def update_episodic_memory(self, features: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> None:
-        self.cec.update_episode(features, actions.reshape(len(actions), -1), returns)
-
-    def _episodic_state(self) -> dict[str, th.Tensor]:
-        return {**_to_tensors(self.cec.state_dict(), "cec/"), **_to_tensors(self.embedding.get_state(), "embedding/")}
-
-    def _load_episodic_state(self, state: dict[str, th.Tensor]) -> None:
-        self.embedding.set_state(_from_tensors(state, "embedding/"))
-        self.cec.load_state_dict(_from_tensors(state, "cec/"))
+        self.memory.update_episode(features, actions.reshape(len(actions), -1), returns)
 
 
 class TwoMemoryMultiInputSACPolicy(TwoMemorySACPolicy):

@@ -8,9 +8,8 @@ from gymnasium import spaces
 from stable_baselines3 import DQN, SAC
 from stable_baselines3.common.policies import BasePolicy
 
-from sb3_gcrl.two_memory.dispatch import TwoMemoryAlgorithmMixin
+from sb3_gcrl.two_memory.dispatch import PecSpec, TwoMemoryAlgorithmMixin
 from sb3_gcrl.two_memory.policies import (
-    PecSpec,
     TwoMemoryDQNPolicy,
     TwoMemoryMinAtarPolicy,
     TwoMemoryMultiInputSACPolicy,
@@ -29,19 +28,22 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
     :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryAlgorithmMixin`).
 
     Policies: ``"MlpPolicy"`` (SB3 MLP Q-network), ``"MinAtarPolicy"`` (the authors' CNN).
-    MFEC settings go in ``policy_kwargs`` (``ec_projection_dim``, ``ec_capacity_per_action``, ``ec_n_neighbors``,
-    ``knn_backend``; see :class:`~sb3_gcrl.two_memory.policies.TwoMemoryDQNPolicy`).
 
     :param policy: policy class or alias.
     :param env: env with a Discrete action space.
     :param p_ec_schedule: p_ec schedule, see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`. ``None``:
-        the policy's ``default_p_ec_schedule``, Eq. 5.5 with the thesis's decayed schedule 0.9 -> 0.1 (Table 5.1,
-        Sec. 5.5.3) and tau = 5e5 env steps.
+        :attr:`default_p_ec_schedule`, Eq. 5.5 with the thesis's decayed schedule 0.9 -> 0.1 (Table 5.1,
+        Sec. 5.5.3) and decay 5e5 env steps.
     :param data_sharing: share all data between both memories (thesis Sec. 5.4.3).
     :param score_window: n of Eq. 5.6 (50).
     :param ec_gamma: discount of the returns stored in MFEC (None: ``gamma``).
+    :param ec_update_truncated: also write time-limit-truncated episodes into MFEC (thesis: every finished episode).
+    :param ec_projection_dim: random-projection dimension of the MFEC keys (authors: 8; None: raw observations).
+    :param ec_capacity_per_action: rows per MFEC action table (None: authors' ``1e5 / (2 * n_actions)``).
+    :param ec_n_neighbors: k of the MFEC estimate (Table 5.1: 3).
+    :param knn_backend: kNN backend of the MFEC tables (see :class:`~sb3_gcrl.memory.KNNIndex`).
     :param kwargs: every :class:`~stable_baselines3.DQN` argument.
-    :raises ValueError: for a non-Discrete action space (use :class:`TwoMemorySAC`), or a 2M switch given in
+    :raises ValueError: for a non-Discrete action space (use :class:`TwoMemorySAC`), or a 2M or EC setting given in
         ``policy_kwargs``.
     """
 
@@ -50,6 +52,8 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
         "MinAtarPolicy": TwoMemoryMinAtarPolicy,
     }
     policy: TwoMemoryDQNPolicy
+    two_memory_policy_class = TwoMemoryDQNPolicy
+    two_memory_action_space = (spaces.Discrete, "TwoMemorySAC")
 
     def __init__(
         self,
@@ -59,31 +63,22 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
         data_sharing: bool = True,
         score_window: int = 50,
         ec_gamma: float | None = None,
+        ec_update_truncated: bool = True,
+        ec_projection_dim: int | None = 8,
+        ec_capacity_per_action: int | None = None,
+        ec_n_neighbors: int = 3,
+        knn_backend: str = "auto",
         **kwargs: Any,
     ) -> None:
-        env = self._check_two_memory_action_space(env, spaces.Discrete, "TwoMemoryDQN", "TwoMemorySAC")
-        self._own_two_memory_kwargs(kwargs)
-        self.p_ec_schedule = p_ec_schedule
-        self.data_sharing = data_sharing
-        self.score_window = score_window
-        self.ec_gamma = ec_gamma
-        init_setup_model = kwargs.pop("_init_setup_model", True)
-        super().__init__(policy, env, _init_setup_model=False, **kwargs)
-        if init_setup_model:
-            self._setup_model()
-
-    def _setup_model(self) -> None:
-        if not issubclass(self.policy_class, TwoMemoryDQNPolicy):
-            raise ValueError(
-                f"TwoMemoryDQN needs a TwoMemoryDQNPolicy (aliases {sorted(self.policy_aliases)}), "
-                f"got {self.policy_class.__name__}"
-            )
-        self._configure_two_memory()
-        super()._setup_model()
-
-    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
-        if self._replay_ready():
-            super().train(gradient_steps, batch_size)
+        ec_kwargs = dict(
+            ec_projection_dim=ec_projection_dim,
+            ec_capacity_per_action=ec_capacity_per_action,
+            ec_n_neighbors=ec_n_neighbors,
+            knn_backend=knn_backend,
+        )
+        super().__init__(
+            policy, env, p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated, ec_kwargs, **kwargs
+        )
 
 
 class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
@@ -91,19 +86,29 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
 
     Not in the thesis (it combines MFEC with DQN only): the same Algorithm 2 with CEC as the episodic half. Same
     switches (p_ec schedule, data sharing, score window) and logging as :class:`TwoMemoryDQN`. SAC explores with its
-    own stochastic policy; EC-run episodes explore as described in
-    :class:`~sb3_gcrl.two_memory.policies.TwoMemorySACPolicy`. CEC settings go in ``policy_kwargs``.
+    own stochastic policy; EC-run episodes explore as standalone CEC does (thesis Algorithm 1; see
+    :class:`~sb3_gcrl.two_memory.policies.TwoMemorySACPolicy`).
 
     :param policy: policy class or alias (``"MlpPolicy"``, ``"MultiInputPolicy"``).
     :param env: env with a Box action space.
-    :param p_ec_schedule: p_ec schedule. ``None``: the policy's ``default_p_ec_schedule``, Eq. 5.5 with 0.9 -> 0.1
-        (Table 5.1's decayed schedule) over tau = 5e4 steps (ours: scaled to the 1e5-step budgets of Ch. 4's tasks).
+    :param p_ec_schedule: p_ec schedule. ``None``: :attr:`default_p_ec_schedule`, Eq. 5.5 with 0.9 -> 0.1 (Table
+        5.1's decayed schedule) and decay 5e4 steps (ours: scaled to the 1e5-step budgets of Ch. 4's tasks).
     :param data_sharing: share all data between both memories.
     :param score_window: n of Eq. 5.6.
     :param ec_gamma: discount of the returns stored in CEC (None: ``gamma``).
+    :param ec_update_truncated: also write time-limit-truncated episodes into CEC (thesis: every finished episode).
+    :param ec_projection_dim: random-projection dimension of the CEC keys (None: raw observations).
+    :param ec_capacity: CEC rows.
+    :param ec_distance_threshold: d of Table 4.4.
+    :param ec_filter_factor: n of Table 4.4.
+    :param ec_n_neighbors: k of Table 4.4.
+    :param ec_temperature: tau of Eq. 4.5 (the softmax temperature).
+    :param ec_epsilon: epsilon of Algorithm 1: probability of Gaussian noise on an EC action while training.
+    :param ec_noise_std: sigma of Algorithm 1: std of that noise, in [-1, 1] action units.
+    :param knn_backend: kNN backend of the CEC memory.
     :param kwargs: every :class:`~stable_baselines3.SAC` argument.
-    :raises ValueError: for a non-Box action space (use :class:`TwoMemoryDQN`), or a 2M switch given in
-        ``policy_kwargs``.
+    :raises ValueError: for a non-Box action space (use :class:`TwoMemoryDQN`), ``use_sde=True``, or a 2M or EC
+        setting given in ``policy_kwargs``.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -111,6 +116,9 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
         "MultiInputPolicy": TwoMemoryMultiInputSACPolicy,
     }
     policy: TwoMemorySACPolicy
+    default_p_ec_schedule = {"type": "decayed", "start": 0.9, "end": 0.1, "decay": 50_000}  # noqa: RUF012
+    two_memory_policy_class = TwoMemorySACPolicy
+    two_memory_action_space = (spaces.Box, "TwoMemoryDQN")
 
     def __init__(
         self,
@@ -120,29 +128,36 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
         data_sharing: bool = True,
         score_window: int = 50,
         ec_gamma: float | None = None,
+        ec_update_truncated: bool = True,
+        ec_projection_dim: int | None = None,
+        ec_capacity: int = 100_000,
+        ec_distance_threshold: float = 0.1,
+        ec_filter_factor: float = 1.0,
+        ec_n_neighbors: int = 5,
+        ec_temperature: float = 0.1,
+        ec_epsilon: float = 0.1,
+        ec_noise_std: float = 0.1,
+        knn_backend: str = "auto",
         **kwargs: Any,
     ) -> None:
-        env = self._check_two_memory_action_space(env, spaces.Box, "TwoMemorySAC", "TwoMemoryDQN")
-        self._own_two_memory_kwargs(kwargs)
-        self.p_ec_schedule = p_ec_schedule
-        self.data_sharing = data_sharing
-        self.score_window = score_window
-        self.ec_gamma = ec_gamma
-        init_setup_model = kwargs.pop("_init_setup_model", True)
-        super().__init__(policy, env, _init_setup_model=False, **kwargs)
-        if init_setup_model:
-            self._setup_model()
+        ec_kwargs = dict(
+            ec_projection_dim=ec_projection_dim,
+            ec_capacity=ec_capacity,
+            ec_distance_threshold=ec_distance_threshold,
+            ec_filter_factor=ec_filter_factor,
+            ec_n_neighbors=ec_n_neighbors,
+            ec_temperature=ec_temperature,
+            ec_epsilon=ec_epsilon,
+            ec_noise_std=ec_noise_std,
+            knn_backend=knn_backend,
+        )
+        super().__init__(
+            policy, env, p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated, ec_kwargs, **kwargs
+        )
 
     def _setup_model(self) -> None:
-        if not issubclass(self.policy_class, TwoMemorySACPolicy):
-            raise ValueError(f"TwoMemorySAC needs a TwoMemorySACPolicy, got {self.policy_class.__name__}")
         if self.use_sde:
             raise ValueError(
                 "TwoMemorySAC does not support use_sde=True (EC-run steps have no SDE noise); set it False"
             )
-        self._configure_two_memory()
         super()._setup_model()
-
-    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        if self._replay_ready():
-            super().train(gradient_steps, batch_size)

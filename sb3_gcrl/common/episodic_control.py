@@ -1,4 +1,4 @@
-"""SB3 plumbing shared by the episodic-control algorithms (CEC, MFEC): policy base and learn loop.
+"""Base classes of the episodic-control algorithms (CEC, MFEC): policy base, learn loop, memory save/restore.
 
 An episodic-control agent has no network and no gradient step: the policy *is* the memory. So the
 policy is a :class:`~stable_baselines3.common.policies.BasePolicy` without parameters that holds the
@@ -38,8 +38,44 @@ from sb3_gcrl.memory.validation import check_float, check_int, check_optional_in
 SelfEpisodicControlAlgorithm = TypeVar("SelfEpisodicControlAlgorithm", bound="EpisodicControlAlgorithm")
 
 
-def _to_tensor(value: Any) -> th.Tensor:
-    return th.as_tensor(np.asarray(value))
+def memory_state(memory: Any, embedding: KeyEmbedding) -> dict[str, th.Tensor]:
+    """An episodic memory (used rows only) and its key embedding as tensors, for a policy's ``get_extra_state``.
+
+    :param memory: the memory (``CECMemory``, ``MFECMemory``: anything with ``state_dict()``).
+    :param embedding: the observation -> key embedding (its projection matrix).
+    :return: ``{"memory/<name>": tensor, "embedding/<name>": tensor}``.
+    """
+    state = {f"memory/{k}": th.as_tensor(np.asarray(v).copy()) for k, v in memory.state_dict().items()}
+    state.update({f"embedding/{k}": th.as_tensor(np.asarray(v).copy()) for k, v in embedding.get_state().items()})
+    return state
+
+
+def _unprefixed(state: dict[str, th.Tensor], prefix: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in state.items():
+        if key.startswith(prefix):
+            array = value.cpu().numpy()
+            out[key[len(prefix) :]] = array.item() if array.ndim == 0 else array  # e.g. the recency clock
+    return out
+
+
+def load_memory_state(owner: Any, memory: Any, embedding: KeyEmbedding, state: dict[str, th.Tensor]) -> None:
+    """Restore what :func:`memory_state` returned, in place.
+
+    :param owner: the policy being restored (named in the error).
+    :param memory: the memory to restore (``load_state_dict``).
+    :param embedding: the key embedding to restore (``set_state``).
+    :param state: the tensors of :func:`memory_state`.
+    :raises MemoryRestoreError: if the saved memory or projection cannot be restored; the memory's own error (what
+        is missing, mis-shaped or corrupted) is in the message and is the ``__cause__``.
+    """
+    try:
+        embedding.set_state(_unprefixed(state, "embedding/"))
+        memory.load_state_dict(_unprefixed(state, "memory/"))
+    except (ValueError, TypeError, KeyError, AttributeError) as error:
+        raise MemoryRestoreError(
+            f"The saved episodic memory cannot be restored into this {type(owner).__name__}: {error}"
+        ) from error
 
 
 class MemoryRestoreError(RuntimeError):
@@ -146,29 +182,11 @@ class EpisodicControlPolicy(BasePolicy):
 
     def get_extra_state(self) -> dict[str, th.Tensor]:
         """Memory rows and projection matrix, as tensors, for ``state_dict``/``policy.pth``."""
-        state = {f"memory/{k}": _to_tensor(v) for k, v in self.memory.state_dict().items()}
-        state.update({f"embedding/{k}": _to_tensor(v) for k, v in self.embedding.get_state().items()})
-        return state
+        return memory_state(self.memory, self.embedding)
 
     def set_extra_state(self, state: dict[str, th.Tensor]) -> None:
-        """Restore what :meth:`get_extra_state` returned.
-
-        :raises MemoryRestoreError: if the saved memory or projection cannot be restored; the memory's own
-            error (what is missing, mis-shaped or corrupted) is in the message and is the ``__cause__``.
-        """
-        try:
-            memory_state = {k[len("memory/") :]: v.cpu().numpy() for k, v in state.items() if k.startswith("memory/")}
-            for name in memory_state:
-                if name == "clock" or name.endswith("/clock"):
-                    memory_state[name] = int(memory_state[name])
-            self.embedding.set_state(
-                {k[len("embedding/") :]: v.cpu().numpy() for k, v in state.items() if k.startswith("embedding/")}
-            )
-            self.memory.load_state_dict(memory_state)
-        except (ValueError, TypeError, KeyError, AttributeError) as error:
-            raise MemoryRestoreError(
-                f"The saved episodic memory cannot be restored into this {type(self).__name__}: {error}"
-            ) from error
+        """Restore what :meth:`get_extra_state` returned (see :func:`load_memory_state`)."""
+        load_memory_state(self, self.memory, self.embedding, state)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -431,7 +449,7 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
             action_shape = self.action_space.shape if isinstance(self.action_space, spaces.Box) else ()
             action_dtype = np.float32 if isinstance(self.action_space, spaces.Box) else np.int64
             self._episode_buffers = EpisodeBuffers(
-                self.env.num_envs, self.policy.embedding.key_dim, action_shape, action_dtype
+                self.env.num_envs, self.policy.embedding.key_dim, action_shape, action_dtype, initial_length=1024
             )
         return total_timesteps, callback
 
@@ -440,7 +458,7 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
         total_timesteps: int,
         callback: MaybeCallback = None,
         log_interval: int = 10,
-        tb_log_name: str = "EpisodicControl",
+        tb_log_name: str | None = None,
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfEpisodicControlAlgorithm:
@@ -449,10 +467,12 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
         :param total_timesteps: env steps (summed over envs).
         :param callback: SB3 callback(s), called after every vectorised step.
         :param log_interval: dump the logs every ``log_interval`` finished episodes (None or <= 0: never).
-        :param tb_log_name: tensorboard run name.
+        :param tb_log_name: tensorboard run name (``None``: the class name, e.g. ``CEC_1``).
         :param reset_num_timesteps: start counting from 0 (and reset the envs).
         :param progress_bar: show a tqdm/rich progress bar.
         """
+        if tb_log_name is None:
+            tb_log_name = type(self).__name__
         total_timesteps, callback = self._setup_learn(
             total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
         )
