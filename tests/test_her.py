@@ -140,34 +140,26 @@ def test_relabeled_rewards_use_the_task_goals() -> None:
     assert np.all(samples.rewards.numpy()[her_part] == 0.0)  # nothing reaches +-100
 
 
-def test_task_relevant_buffer_errors() -> None:
-    env = make_vec_env(LineGoalEnv, n_envs=1, seed=0)
-    with pytest.raises(TypeError, match="wrap it in sb3_gcrl.wrappers.GoalCommandWrapper"):
-        SAC(
-            "MultiInputPolicy",
-            env,
-            replay_buffer_class=TaskRelevantHerReplayBuffer,
-            replay_buffer_kwargs={"task_goal_ratio": 0.2},
-            policy_kwargs=TINY,
-        )
-    with pytest.raises(ValueError, match="pass task_goal_ratio"):  # no alpha given and none to read
-        SAC("MultiInputPolicy", env, replay_buffer_class=TaskRelevantHerReplayBuffer, policy_kwargs=TINY)
-    with pytest.raises(ValueError, match=r"task_goal_ratio \(alpha\) must be in \[0, 1\]"):
-        SAC(
-            "MultiInputPolicy",
-            env,
-            replay_buffer_class=TaskRelevantHerReplayBuffer,
-            replay_buffer_kwargs={"task_goal_ratio": 1.5},
-            policy_kwargs=TINY,
-        )
-    # alpha = 0 is standard HER and needs no goal-commanding wrapper
-    SAC(
+def task_relevant_sac(env, task_goal_ratio: float | None = None) -> SAC:  # type: ignore[no-untyped-def]
+    kwargs = None if task_goal_ratio is None else {"task_goal_ratio": task_goal_ratio}
+    return SAC(
         "MultiInputPolicy",
         env,
         replay_buffer_class=TaskRelevantHerReplayBuffer,
-        replay_buffer_kwargs={"task_goal_ratio": 0.0},
+        replay_buffer_kwargs=kwargs,
         policy_kwargs=TINY,
     )
+
+
+def test_task_relevant_buffer_errors() -> None:
+    env = make_vec_env(LineGoalEnv, n_envs=1, seed=0)
+    with pytest.raises(TypeError, match="wrap it in sb3_gcrl.wrappers.GoalCommandWrapper"):
+        task_relevant_sac(env, 0.2)
+    with pytest.raises(ValueError, match="pass task_goal_ratio"):  # no alpha given and none to read
+        task_relevant_sac(env)
+    with pytest.raises(ValueError, match=r"task_goal_ratio \(alpha\) must be in \[0, 1\]"):
+        task_relevant_sac(env, 1.5)
+    task_relevant_sac(env, 0.0)  # alpha = 0 is standard HER and needs no goal-commanding wrapper
 
 
 def morefree_line(alpha: float) -> object:
@@ -180,15 +172,7 @@ def morefree_line(alpha: float) -> object:
 
 def test_alpha_is_read_from_the_scheduler_and_a_second_different_alpha_is_refused() -> None:
     env = make_vec_env(LineGoalEnv, n_envs=2, seed=0, wrapper_class=morefree_line(0.3))
-    model = SAC("MultiInputPolicy", env, replay_buffer_class=TaskRelevantHerReplayBuffer, policy_kwargs=TINY)
-    assert model.replay_buffer.task_goal_ratio == 0.3  # stated once, in the scheduler
-    same = {"task_goal_ratio": 0.3}
-    SAC("MultiInputPolicy", env, replay_buffer_class=TaskRelevantHerReplayBuffer, replay_buffer_kwargs=same)
+    assert task_relevant_sac(env).replay_buffer.task_goal_ratio == 0.3  # stated once, in the scheduler
+    assert task_relevant_sac(env, 0.3).replay_buffer.task_goal_ratio == 0.3  # the same value twice is fine
     with pytest.raises(ValueError, match="alpha given twice with different values"):
-        SAC(
-            "MultiInputPolicy",
-            env,
-            replay_buffer_class=TaskRelevantHerReplayBuffer,
-            replay_buffer_kwargs={"task_goal_ratio": 0.2},
-            policy_kwargs=TINY,
-        )
+        task_relevant_sac(env, 0.2)
