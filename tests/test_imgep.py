@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import gymnasium as gym
 import numpy as np
 import pytest
+from envs import ChainEnv as Chain
 from gymnasium import spaces
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalCallback, StopTrainingOnMaxEpisodes
@@ -15,35 +18,10 @@ import sb3_gcrl  # noqa: F401
 from sb3_gcrl.imgep import TabularGoalEnv, TabularGoalPolicy, TabularIMGEP, minigrid_reachable_cells
 from sb3_gcrl.post_exploration import AllGoalsEvalCallback, FixedSteps, ProportionalSteps, evaluate_all_goals
 
-
-class ChainEnv(gym.Env):
-    """States 0..n-1 on a line, start 0; action 1 moves right, 0 left; truncation after ``horizon`` steps."""
-
-    def __init__(self, n: int = 6, horizon: int = 20) -> None:
-        self.observation_space = spaces.Discrete(n)
-        self.action_space = spaces.Discrete(2)
-        self.n, self.horizon = n, horizon
-        self.executed: list[int] = []
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        self.state, self.t = 0, 0
-        return np.int64(0), {}
-
-    def step(self, action):
-        self.executed.append(int(action))
-        self.state = int(np.clip(self.state + (1 if action == 1 else -1), 0, self.n - 1))
-        self.t += 1
-        return np.int64(self.state), 0.0, False, self.t >= self.horizon, {}
-
-
-class ChainTaskEnv(ChainEnv):
-    """ChainEnv whose own task is to reach the last state (reward 1, terminated there)."""
-
-    def step(self, action):
-        state, _, _, truncated, info = super().step(action)
-        at_end = self.state == self.n - 1
-        return state, float(at_end), at_end, truncated, info
+#: states 0..5 on a line, start 0; action 1 moves right, 0 left; no reward, truncation after 20 steps
+ChainEnv = partial(Chain, n=6, horizon=20, goal_reward=0.0, terminal_goal=False)
+#: ChainEnv whose own task is to reach the last state (reward 1, terminated there)
+ChainTaskEnv = partial(Chain, n=6, horizon=20)
 
 
 def make_model(**kwargs) -> TabularIMGEP:

@@ -1,11 +1,13 @@
 """MFEC as an SB3 algorithm: Eq. 5.2 through learn(), greedy/tie-breaking, save/load, seeding, errors."""
 
 import os
+from functools import partial
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from envs import ChainEnv as Chain
 from gymnasium import spaces
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
@@ -18,22 +20,8 @@ from sb3_gcrl.algorithms import load_algorithm
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-class ChainEnv(gym.Env):
-    """States 0..4 on a chain; action 1 moves right, 0 moves left; reward 1 at state 4 (terminal)."""
-
-    observation_space = spaces.Discrete(5)
-    action_space = spaces.Discrete(2)
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        self.s, self.t = 0, 0
-        return self.s, {}
-
-    def step(self, action):
-        self.s = max(0, self.s + (1 if action == 1 else -1))
-        self.t += 1
-        done = self.s == 4
-        return self.s, float(done), done, self.t >= 20, {"is_success": done}
+#: states 0..4 on a chain; action 1 moves right, 0 moves left; reward 1 at state 4 (terminal); 20-step limit
+ChainEnv = partial(Chain, n=5, horizon=20)
 
 
 def test_learns_chain_and_memory_holds_max_discounted_returns():
@@ -117,14 +105,16 @@ def test_zoo_config_hyperparameters_build_models():
         env.close()
 
 
-class ImageChainEnv(ChainEnv):
+class ImageChainEnv(Chain):
     """ChainEnv rendered as a channel-last uint8 image (4 x 5 x 3): column ``s`` is lit."""
 
-    observation_space = spaces.Box(0, 255, (4, 5, 3), np.uint8)
+    def __init__(self) -> None:
+        super().__init__(n=5, horizon=20)
+        self.observation_space = spaces.Box(0, 255, (4, 5, 3), np.uint8)
 
     def _image(self) -> np.ndarray:
         image = np.zeros((4, 5, 3), np.uint8)
-        image[:, self.s] = 255
+        image[:, self.state] = 255
         return image
 
     def reset(self, *, seed=None, options=None):

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from envs import ChainEnv as Chain
 from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_gcrl  # noqa: F401  (registers GCRL/WindyGrid-v0)
+from sb3_gcrl.memory.episode import discounted_returns
 from sb3_gcrl.tabular import (
     TabularEpisodicControl,
     TabularQLearning,
@@ -19,7 +22,6 @@ from sb3_gcrl.tabular import (
 )
 from sb3_gcrl.tabular.policies import TabularECPolicy, greedy_actions
 from sb3_gcrl.two_memory import EPISODIC, PARAMETRIC, SourceTaggedReplayBuffer
-from sb3_gcrl.memory.episode import discounted_returns
 
 WINDY = "GCRL/WindyGrid-v0"
 
@@ -28,20 +30,8 @@ def windy() -> gym.Env:
     return gym.make(WINDY)
 
 
-class ChainEnv(gym.Env):
-    """States 0..4, start 0; action 1 moves right, 0 stays; reward -1 per step; terminal at 4 (deterministic)."""
-
-    observation_space = gym.spaces.Discrete(5)
-    action_space = gym.spaces.Discrete(2)
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        self.state = 0
-        return self.state, {}
-
-    def step(self, action):
-        self.state = min(self.state + int(action), 4)
-        return self.state, -1.0, self.state == 4, False, {}
+#: states 0..4, start 0; action 1 moves right, 0 stays; reward -1 per step; terminal at 4 (deterministic)
+ChainEnv = partial(Chain, n=5, stay_on_zero=True, step_reward=-1.0, goal_reward=0.0)
 
 
 def test_q_learning_update_matches_hand_computation():
