@@ -102,7 +102,7 @@ class MoReFree(BaseAlgorithm):
         batch_length: int = 32,
         train_ratio: int = 2,
         imagination_horizon: int = 15,
-        imagination_starts: int | None = 256,
+        imagination_starts: int | None = 64,
         gamma: float = 0.99,
         lambda_: float = 0.95,
         imagination_alpha: float | None = None,
@@ -352,12 +352,13 @@ class MoReFree(BaseAlgorithm):
                 actions = self._rng.uniform(-1, 1, (self.n_envs, *self.action_space.shape)).astype(np.float32)
                 return actions
             feat = self._latent.feat
-            actions_g, _ = policy.actor_g.act(feat, goals)
+            if all(p == "explore" for p in phases):
+                return policy.actor_e.act(feat)[0].cpu().numpy()
+            actions = policy.actor_g.act(feat, goals)[0]
             if "explore" in phases:
-                actions_e, _ = policy.actor_e.act(feat)
                 explore = th.as_tensor([p == "explore" for p in phases], device=self.device).unsqueeze(-1)
-                actions_g = th.where(explore, actions_e, actions_g)
-        return actions_g.cpu().numpy()
+                actions = th.where(explore, policy.actor_e.act(feat)[0], actions)
+        return actions.cpu().numpy()
 
     def _store(
         self, new_obs: dict[str, np.ndarray], scaled: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
@@ -592,7 +593,8 @@ class MoReFree(BaseAlgorithm):
             self._start_streams()
         try:
             while self.num_timesteps < total_timesteps:
-                if not self.collect_rollouts(callback, self.train_ratio, log_interval):
+                remaining = -(-(total_timesteps - self.num_timesteps) // self.n_envs)
+                if not self.collect_rollouts(callback, min(self.train_ratio, remaining), log_interval):
                     break
                 if self.num_timesteps >= self.learning_starts and self.replay_buffer.can_sample(self.batch_length):
                     self.train()

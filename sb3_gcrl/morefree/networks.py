@@ -148,16 +148,16 @@ class RSSM(nn.Module):
         probs = F.softmax(logits, -1)
         if mode:
             index = probs.argmax(-1)
-        else:
-            index = th.multinomial(probs.reshape(-1, self.classes), 1).reshape(probs.shape[:-1])
+        else:  # Gumbel-max: a categorical sample, faster than multinomial on small batches
+            noise = th.rand_like(logits).clamp_(min=1e-9)
+            index = (logits.detach() - th.log(-th.log(noise))).argmax(-1)
         sample = F.one_hot(index, self.classes).to(probs.dtype)
         sample = sample + probs - probs.detach()
         return sample.reshape(*sample.shape[:-2], self.stoch_dim)
 
     def img_step(self, state: LatentState, action: th.Tensor) -> LatentState:
         """Prior step: h_t = GRU(h_{t-1}, z_{t-1}, a_{t-1}), z_t ~ p(z_t | h_t)."""
-        x = self.img_in(th.cat([state.stoch, action], -1))
-        deter = self.gru(x, state.deter)
+        deter = self.step_deter(state, action)
         logits = self._logits(self.prior_net(deter))
         return LatentState(deter, self._sample(logits), logits)
 
@@ -166,8 +166,16 @@ class RSSM(nn.Module):
     ) -> tuple[LatentState, LatentState]:
         """Posterior step: the prior step, then z_t ~ q(z_t | h_t, e_t) (the mode if ``mode``); (post, prior)."""
         prior = self.img_step(state, action)
-        logits = self._logits(self.post_net(th.cat([prior.deter, embed], -1)))
-        return LatentState(prior.deter, self._sample(logits, mode), logits), prior
+        return self.posterior(prior.deter, embed, mode), prior
+
+    def posterior(self, deter: th.Tensor, embed: th.Tensor, mode: bool = False) -> LatentState:
+        """z ~ q(z | h, e) for a deterministic state ``deter`` already stepped (no prior computed)."""
+        logits = self._logits(self.post_net(th.cat([deter, embed], -1)))
+        return LatentState(deter, self._sample(logits, mode), logits)
+
+    def step_deter(self, state: LatentState, action: th.Tensor) -> th.Tensor:
+        """h_t = GRU(h_{t-1}, z_{t-1}, a_{t-1}) only (filtering needs no prior sample)."""
+        return self.gru(self.img_in(th.cat([state.stoch, action], -1)), state.deter)
 
     def observe(
         self, embed: th.Tensor, actions: th.Tensor, is_first: th.Tensor, state: LatentState | None = None
@@ -384,7 +392,8 @@ class DisagreementEnsemble(nn.Module):
 
     def disagreement(self, feat: th.Tensor, action: th.Tensor) -> th.Tensor:
         """Intrinsic reward: variance across members, averaged over the embedding dimensions."""
-        return self(feat, action).var(0).mean(-1)
+        predictions = self(feat, action)
+        return (predictions - predictions.mean(0)).pow(2).sum(0).mean(-1) / max(len(self.members) - 1, 1)
 
 
 def lambda_returns(rewards: th.Tensor, values: th.Tensor, gamma: float, lam: float) -> th.Tensor:

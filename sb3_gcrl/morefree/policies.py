@@ -32,15 +32,15 @@ from sb3_gcrl.morefree.networks import (
 
 #: network sizes of the CPU preset (PointUMaze in about 1 h per 50k steps on one core)
 CPU_NETWORK = {
-    "deter": 128,
-    "stoch": 16,
-    "classes": 16,
-    "hidden": 128,
-    "embed_dim": 128,
+    "deter": 64,
+    "stoch": 8,
+    "classes": 8,
+    "hidden": 64,
+    "embed_dim": 64,
     "model_layers": 2,
-    "actor_hidden": 128,
+    "actor_hidden": 64,
     "actor_layers": 2,
-    "ensemble_size": 5,
+    "ensemble_size": 3,
 }
 #: network sizes of DreamerV2's state-input (DMC) defaults, the backbone PEG and the thesis keep (GPU preset)
 THESIS_NETWORK = {
@@ -193,8 +193,8 @@ class MoReFreePolicy(BasePolicy):
 
         ``deterministic`` takes the posterior's mode instead of a sample (deterministic actions).
         """
-        post, _ = self.world_model.rssm.obs_step(state, prev_action, self.world_model.embed(states), deterministic)
-        return post
+        rssm = self.world_model.rssm
+        return rssm.posterior(rssm.step_deter(state, prev_action), self.world_model.embed(states), deterministic)
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
         # memoryless: the latent of this observation from the zero state
