@@ -158,7 +158,9 @@ def check_hyperparameters(algo: str, section: dict[str, Any], where: str, overri
     """
     from rl_zoo3.utils import ALGOS
 
-    algo_class = ALGOS[algo]
+    from sb3_gcrl.algorithms import ALGORITHMS, load_algorithm
+
+    algo_class = load_algorithm(algo) if algo in ALGORITHMS else ALGOS[algo]
     arguments = constructor_arguments(algo_class)
     if arguments is None:
         return
