@@ -1,189 +1,169 @@
-"""Optuna samplers for this package's algorithms, so that ``sb3-gcrl train --algo <ours> -optimize`` works.
+"""Optuna search spaces for this package's algorithms, so that ``sb3-gcrl train --algo <ours> -optimize`` works.
 
 RL-Zoo looks a sampler up in ``rl_zoo3.hyperparams_opt.HYPERPARAMS_SAMPLER[algo]`` and calls it as
 ``sampler(trial, n_actions, n_envs, additional_args)``; the returned dict updates the config's hyperparameters
-before the model is built, so every key is a constructor argument of the algorithm (a test checks that).
-:func:`register_zoo_samplers` adds :data:`SAMPLERS` to that table; ``sb3-gcrl train`` calls it.
+before the model is built, so every key is a constructor argument of the algorithm (a test builds a model from
+sampled values for every algorithm). The search spaces are data (:data:`SEARCH_SPACES`), turned into samplers by
+one function; :func:`register_zoo_samplers` adds them to RL-Zoo's table (``sb3-gcrl train`` calls it).
 
-The search spaces are the thesis's tuned values where it gives them:
+The ranges are the thesis's tuned values where it gives them:
 
 - CEC, Table 4.4 (k, tau, sigma, n, d over the four navigation tasks);
 - MFEC and the 2M agents, Table 5.1 (epsilon 0.1 / 0.9, k 1 / 3 / 10, p_ec schedules 0.9->0.1, 0.1->0.1,
   0.1->0.9, learning rate 1e-3 / 1e-4);
 - tabular IMGEP, Table 6.2 (learning rate 0.1, tau 0, epsilon 0 / 0.1 / 0.3, p_pe 0.5), widened around the
   table's single values so that a search has something to find;
-- tabular Q / EC: the authors' tabular 2M settings (learning rate 0.01, epsilon 0.1 -> 0.05), widened likewise.
+- tabular Q / EC: the authors' tabular 2M settings (learning rate 0.01, epsilon 0.1 -> 0.05), widened likewise;
+- MoReFree (Ch. 3): the train ratios of Table 3.2, learning rate, imagination horizon and entropy around PEG's
+  defaults.
+
+Settings of the env wrappers (MoReFree's alpha, the horizons H_G = H_E, the hard-reset interval) are not
+constructor arguments of an algorithm, and RL-Zoo's sampler interface can only return those; tune them by running
+one config per value (``sb3-gcrl compare`` does that side by side).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import optuna
 
 Sampler = Callable[[optuna.Trial, int, int, dict[str, Any]], dict[str, Any]]
 
-#: Table 5.1's switching schedules p^s -> p^e (Eq. 5.5), by name for optuna's categorical distributions
-P_EC_SCHEDULES: dict[str, tuple[float, float]] = {"0.9-0.1": (0.9, 0.1), "0.1-0.1": (0.1, 0.1), "0.1-0.9": (0.1, 0.9)}
+
+@dataclass(frozen=True)
+class Choice:
+    """One of ``values`` (optuna's categorical distribution)."""
+
+    values: tuple[Any, ...]
+
+    def sample(self, trial: optuna.Trial, name: str) -> Any:
+        return trial.suggest_categorical(name, list(self.values))
 
 
-def _p_ec_schedule(trial: optuna.Trial, decay: float) -> dict[str, Any]:
-    start, end = P_EC_SCHEDULES[trial.suggest_categorical("p_ec", list(P_EC_SCHEDULES))]
-    return {"type": "decayed" if start >= end else "increasing", "start": start, "end": end, "decay": decay}
+@dataclass(frozen=True)
+class Range:
+    """A float in ``[low, high]``, log-uniform if ``log``."""
+
+    low: float
+    high: float
+    log: bool = False
+
+    def sample(self, trial: optuna.Trial, name: str) -> float:
+        return trial.suggest_float(name, self.low, self.high, log=self.log)
 
 
-def sample_cec_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]) -> dict:
-    """CEC (thesis Ch. 4, Table 4.4: k, tau, sigma, n, d).
+@dataclass(frozen=True)
+class SwitchingSchedule:
+    """A p_ec schedule of Eq. 5.5: Table 5.1's ``p^s -> p^e`` pairs with a log-uniform decay constant."""
 
-    :param trial: the optuna trial.
-    :param n_actions: action dimension (unused).
-    :param n_envs: number of envs (unused).
-    :param additional_args: RL-Zoo's extra arguments (unused).
-    :return: CEC constructor arguments.
-    """
-    return {
-        "n_neighbors": trial.suggest_categorical("n_neighbors", [1, 3, 5]),
-        "temperature": trial.suggest_categorical("temperature", [0.1, 1.0, 10.0]),
-        "noise_std": trial.suggest_categorical("noise_std", [0.1, 0.3]),
-        "filter_factor": trial.suggest_categorical("filter_factor", [1.0, 3.0]),
-        "distance_threshold": trial.suggest_float("distance_threshold", 0.01, 0.5, log=True),
-        "exploration_fraction": trial.suggest_float("exploration_fraction", 0.1, 1.0),
-    }
+    decay_low: float
+    decay_high: float
+    #: Table 5.1's switching schedules p^s -> p^e, by name for optuna's categorical distribution
+    pairs: tuple[tuple[str, float, float], ...] = (("0.9-0.1", 0.9, 0.1), ("0.1-0.1", 0.1, 0.1), ("0.1-0.9", 0.1, 0.9))
+
+    def sample(self, trial: optuna.Trial, name: str) -> dict[str, Any]:
+        pairs = {label: (start, end) for label, start, end in self.pairs}
+        start, end = pairs[trial.suggest_categorical(f"{name}_pair", list(pairs))]
+        decay = trial.suggest_float(f"{name}_decay", self.decay_low, self.decay_high, log=True)
+        return {"type": "decayed" if start >= end else "increasing", "start": start, "end": end, "decay": decay}
 
 
-def sample_mfec_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]) -> dict:
-    """MFEC (thesis Sec. 5.2.3; Table 5.1: epsilon and k).
+@dataclass(frozen=True)
+class Nested:
+    """A dict ``{key: value}`` with the value drawn from ``space`` (e.g. IMGEP's ``{p_pe: 0.5}`` rule)."""
 
-    :param trial: the optuna trial.
-    :param n_actions: number of actions (unused).
-    :param n_envs: number of envs (unused).
-    :param additional_args: RL-Zoo's extra arguments (unused).
-    :return: MFEC constructor arguments.
-    """
-    return {
-        "n_neighbors": trial.suggest_categorical("n_neighbors", [1, 3, 10]),
-        "exploration_initial_eps": trial.suggest_categorical("exploration_initial_eps", [0.1, 0.9]),
-        "exploration_fraction": trial.suggest_float("exploration_fraction", 0.05, 0.5),
-    }
+    key: str
+    space: Choice | Range
+
+    def sample(self, trial: optuna.Trial, name: str) -> dict[str, Any]:
+        return {self.key: self.space.sample(trial, self.key)}
 
 
-def sample_two_memory_dqn_params(
-    trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]
-) -> dict:
-    """TwoMemoryDQN (thesis Ch. 5, Table 5.1: epsilon, p_ec schedule, learning rate, MFEC's k).
+Space = Choice | Range | SwitchingSchedule | Nested
 
-    :param trial: the optuna trial.
-    :param n_actions: number of actions (unused).
-    :param n_envs: number of envs (unused).
-    :param additional_args: RL-Zoo's extra arguments (unused).
-    :return: TwoMemoryDQN constructor arguments.
-    """
-    return {
-        "learning_rate": trial.suggest_categorical("learning_rate", [1e-3, 1e-4]),
-        "exploration_initial_eps": trial.suggest_categorical("exploration_initial_eps", [0.1, 0.9]),
-        "p_ec_schedule": _p_ec_schedule(trial, decay=trial.suggest_float("p_ec_decay", 1e4, 1e6, log=True)),
-        "ec_n_neighbors": trial.suggest_categorical("ec_n_neighbors", [1, 3, 10]),
-    }
-
-
-def sample_two_memory_sac_params(
-    trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]
-) -> dict:
-    """TwoMemorySAC (CEC + SAC, ours): Table 5.1's switching schedules, SAC's learning rate, and CEC's k and softmax
-    temperature (Table 4.4).
-
-    :param trial: the optuna trial.
-    :param n_actions: action dimension (unused).
-    :param n_envs: number of envs (unused).
-    :param additional_args: RL-Zoo's extra arguments (unused).
-    :return: TwoMemorySAC constructor arguments.
-    """
-    return {
-        "learning_rate": trial.suggest_categorical("learning_rate", [3e-4, 1e-3, 1e-4]),
-        "p_ec_schedule": _p_ec_schedule(trial, decay=trial.suggest_float("p_ec_decay", 1e4, 1e6, log=True)),
-        "ec_n_neighbors": trial.suggest_categorical("ec_n_neighbors", [1, 3, 5]),
-        "ec_temperature": trial.suggest_categorical("ec_temperature", [0.1, 1.0, 10.0]),
-    }
-
-
-def _sample_tabular_q(trial: optuna.Trial) -> dict[str, Any]:
-    return {
-        "learning_rate": trial.suggest_float("learning_rate", 0.005, 0.5, log=True),
-        "exploration_final_eps": trial.suggest_categorical("exploration_final_eps", [0.01, 0.05, 0.1]),
-    }
-
-
-def sample_tabular_q_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]) -> dict:
-    """Tabular Q-learning (thesis Sec. 5.5.1; authors' tabular settings: learning rate 0.01, epsilon 0.1 -> 0.05).
-
-    :param trial: the optuna trial.
-    :param n_actions: number of actions (unused).
-    :param n_envs: number of envs (unused).
-    :param additional_args: RL-Zoo's extra arguments (unused).
-    :return: TabularQLearning constructor arguments.
-    """
-    return _sample_tabular_q(trial)
-
-
-def sample_tabular_ec_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]) -> dict:
-    """Tabular episodic control (thesis Sec. 5.5.1): exploration only (the max-return update has no rate).
-
-    :param trial: the optuna trial.
-    :param n_actions: number of actions (unused).
-    :param n_envs: number of envs (unused).
-    :param additional_args: RL-Zoo's extra arguments (unused).
-    :return: TabularEpisodicControl constructor arguments.
-    """
-    return {
-        "exploration_initial_eps": trial.suggest_categorical("exploration_initial_eps", [0.1, 0.5, 0.9]),
-        "exploration_final_eps": trial.suggest_categorical("exploration_final_eps", [0.01, 0.05, 0.1]),
-    }
-
-
-def sample_tabular_2m_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]) -> dict:
-    """Tabular 2M (thesis Sec. 5.5.1): Q-learning's rate and exploration, Table 5.1's switching schedules.
-
-    :param trial: the optuna trial.
-    :param n_actions: number of actions (unused).
-    :param n_envs: number of envs (unused).
-    :param additional_args: RL-Zoo's extra arguments (unused).
-    :return: TabularTwoMemory constructor arguments.
-    """
-    return {
-        **_sample_tabular_q(trial),
-        "p_ec_schedule": _p_ec_schedule(trial, decay=trial.suggest_float("p_ec_decay", 1e3, 1e5, log=True)),
-    }
-
-
-def sample_imgep_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]) -> dict:
-    """Tabular IMGEP with post-exploration (thesis Ch. 6, Table 6.2: learning rate, tau, epsilon, p_pe).
-
-    :param trial: the optuna trial.
-    :param n_actions: number of actions (unused).
-    :param n_envs: number of envs (unused).
-    :param additional_args: RL-Zoo's extra arguments (unused).
-    :return: TabularIMGEP constructor arguments.
-    """
-    return {
-        "learning_rate": trial.suggest_float("learning_rate", 0.02, 0.5, log=True),
-        "epsilon": trial.suggest_categorical("epsilon", [0.0, 0.1, 0.3]),
-        "tau": trial.suggest_categorical("tau", [0.0, 0.5, 1.0, 2.0]),
-        "post_exploration_rule": {"p_pe": trial.suggest_categorical("p_pe", [0.25, 0.5, 1.0])},
-    }
-
-
-#: ``--algo`` name -> sampler (every key of :data:`sb3_gcrl.algorithms.ALGORITHMS` has one; a test checks it)
-SAMPLERS: dict[str, Sampler] = {
-    "cec": sample_cec_params,
-    "mfec": sample_mfec_params,
-    "two_memory_dqn": sample_two_memory_dqn_params,
-    "two_memory_sac": sample_two_memory_sac_params,
-    "tabular_q": sample_tabular_q_params,
-    "tabular_ec": sample_tabular_ec_params,
-    "tabular_2m": sample_tabular_2m_params,
-    "imgep": sample_imgep_params,
+_TABULAR_Q: dict[str, Space] = {
+    "learning_rate": Range(0.005, 0.5, log=True),
+    "exploration_final_eps": Choice((0.01, 0.05, 0.1)),
 }
+
+#: ``--algo`` name -> constructor argument -> its search space (every algorithm of the package has one; tested)
+SEARCH_SPACES: dict[str, dict[str, Space]] = {
+    "cec": {  # Table 4.4
+        "n_neighbors": Choice((1, 3, 5)),
+        "temperature": Choice((0.1, 1.0, 10.0)),
+        "noise_std": Choice((0.1, 0.3)),
+        "filter_factor": Choice((1.0, 3.0)),
+        "distance_threshold": Range(0.01, 0.5, log=True),
+        "exploration_fraction": Range(0.1, 1.0),
+    },
+    "mfec": {  # Table 5.1 (epsilon, k)
+        "n_neighbors": Choice((1, 3, 10)),
+        "exploration_initial_eps": Choice((0.1, 0.9)),
+        "exploration_fraction": Range(0.05, 0.5),
+    },
+    "two_memory_dqn": {  # Table 5.1
+        "learning_rate": Choice((1e-3, 1e-4)),
+        "exploration_initial_eps": Choice((0.1, 0.9)),
+        "p_ec_schedule": SwitchingSchedule(1e4, 1e6),
+        "ec_n_neighbors": Choice((1, 3, 10)),
+    },
+    "two_memory_sac": {  # Table 5.1's switching, SAC's learning rate, CEC's k and softmax temperature (Table 4.4)
+        "learning_rate": Choice((3e-4, 1e-3, 1e-4)),
+        "p_ec_schedule": SwitchingSchedule(1e4, 1e6),
+        "ec_n_neighbors": Choice((1, 3, 5)),
+        "ec_temperature": Choice((0.1, 1.0, 10.0)),
+    },
+    "tabular_q": _TABULAR_Q,
+    "tabular_ec": {  # the max-return update has no rate: exploration only
+        "exploration_initial_eps": Choice((0.1, 0.5, 0.9)),
+        "exploration_final_eps": Choice((0.01, 0.05, 0.1)),
+    },
+    "tabular_2m": {**_TABULAR_Q, "p_ec_schedule": SwitchingSchedule(1e3, 1e5)},
+    "imgep": {  # Table 6.2
+        "learning_rate": Range(0.02, 0.5, log=True),
+        "epsilon": Choice((0.0, 0.1, 0.3)),
+        "tau": Choice((0.0, 0.5, 1.0, 2.0)),
+        "post_exploration_rule": Nested("p_pe", Choice((0.25, 0.5, 1.0))),
+    },
+    "morefree": {  # Table 3.2's train ratios (every n env steps one training round), around PEG's defaults
+        "train_ratio": Choice((1, 2, 5)),
+        "learning_rate": Range(1e-4, 1e-3, log=True),
+        "imagination_horizon": Choice((10, 15, 20)),
+        "entropy_coef": Range(1e-5, 1e-3, log=True),
+    },
+}
+
+
+def sample_hyperparameters(trial: optuna.Trial, space: dict[str, Space]) -> dict[str, Any]:
+    """Draw one value per constructor argument of ``space`` (optuna parameter names are the argument names).
+
+    :param trial: the optuna trial.
+    :param space: constructor argument -> search space.
+    :return: constructor arguments.
+    """
+    return {name: distribution.sample(trial, name) for name, distribution in space.items()}
+
+
+def make_sampler(algo: str) -> Sampler:
+    """RL-Zoo sampler (``sampler(trial, n_actions, n_envs, additional_args)``) over ``SEARCH_SPACES[algo]``.
+
+    :param algo: key of :data:`SEARCH_SPACES`.
+    :return: the sampler; ``n_actions``, ``n_envs`` and ``additional_args`` are not used by these spaces.
+    """
+    space = SEARCH_SPACES[algo]
+
+    def sampler(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]) -> dict[str, Any]:
+        return sample_hyperparameters(trial, space)
+
+    sampler.__name__ = f"sample_{algo}_params"
+    return sampler
+
+
+#: ``--algo`` name -> RL-Zoo sampler
+SAMPLERS: dict[str, Sampler] = {name: make_sampler(name) for name in SEARCH_SPACES}
 
 
 def register_zoo_samplers() -> None:
