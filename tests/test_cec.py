@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 from gymnasium import spaces
-from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_checker import check_env
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
@@ -111,34 +111,6 @@ def test_save_load_round_trip_restores_memory_exactly(tmp_path):
     # training continues after loading
     loaded.set_env(gym.make("GCRL/GrowingTree-v0"))
     loaded.learn(300, reset_num_timesteps=False, log_interval=None)
-
-
-def test_seeding_is_deterministic():
-    def run(seed):
-        model = CEC("CECPolicy", gym.make("GCRL/GrowingTree-v0"), seed=seed, **GROWING_TREE)
-        model.learn(1200, log_interval=None)
-        return model.policy.memory.state_dict()
-
-    a, b, c = run(5), run(5), run(6)
-    for name in ("keys", "actions", "values", "last_update"):
-        np.testing.assert_array_equal(a[name], b[name])
-    assert len(a["keys"]) != len(c["keys"]) or not np.array_equal(a["keys"], c["keys"])
-
-
-def test_callbacks_progress_bar_and_evaluate_policy():
-    class StopAfter(BaseCallback):
-        def _on_step(self) -> bool:
-            return self.num_timesteps < 250
-
-    env = gym.make("GCRL/GrowingTree-v0")
-    model = CEC("CECPolicy", env, seed=0, **GROWING_TREE)
-    model.learn(1000, callback=StopAfter(), progress_bar=True, log_interval=None)
-    assert model.num_timesteps == 250
-    eval_cb = EvalCallback(gym.make("GCRL/GrowingTree-v0"), eval_freq=200, n_eval_episodes=1, verbose=0)
-    model.learn(400, callback=eval_cb, log_interval=None)
-    assert eval_cb.n_calls == 400
-    mean, _ = evaluate_policy(model, gym.make("GCRL/GrowingTree-v0"), n_eval_episodes=2, deterministic=True)
-    assert mean in (0.0, 1.0)
 
 
 def test_deterministic_predict_on_empty_memory_is_the_action_centre():

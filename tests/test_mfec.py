@@ -67,18 +67,6 @@ def test_minatar_with_projection_several_envs_save_load(tmp_path):
     np.testing.assert_array_equal(model.predict(obs)[0], loaded.predict(obs)[0])
 
 
-def test_seeding_is_deterministic():
-    def run(seed):
-        model = MFEC("MFECPolicy", gym.make("GCRL/WindyGrid-v0"), projection_dim=None, seed=seed)
-        model.learn(1500, log_interval=None)
-        return model.policy.memory.state_dict()
-
-    a, b = run(4), run(4)
-    assert a.keys() == b.keys()
-    for name in a:
-        np.testing.assert_array_equal(a[name], b[name])
-
-
 def test_errors_name_the_fix():
     with pytest.raises(ValueError, match="CEC"):
         MFEC("MFECPolicy", gym.make("Pendulum-v1"))

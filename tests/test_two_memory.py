@@ -256,19 +256,6 @@ def test_save_load_round_trip_dqn(tmp_path):
     loaded.learn(100)  # training continues after loading
 
 
-def test_seeding_is_deterministic_dqn():
-    runs = []
-    for _ in range(2):
-        model = TwoMemoryDQN("MlpPolicy", Corridor(), p_ec_schedule=0.5, seed=7, **TINY_DQN)
-        model.learn(250)
-        runs.append((model.policy.episode_counts.copy(), model.policy.memory.state_dict(), model.q_net.state_dict()))
-    np.testing.assert_array_equal(runs[0][0], runs[1][0])
-    for key, value in runs[0][1].items():
-        np.testing.assert_array_equal(value, runs[1][1][key])
-    for key, value in runs[0][2].items():
-        assert th.equal(value, runs[1][2][key])
-
-
 def test_two_memory_sac_dispatch_and_round_trip(tmp_path):
     env = make_vec_env(Slider, n_envs=2, seed=0)
     model = TwoMemorySAC(
@@ -460,26 +447,3 @@ def test_tensorboard_run_is_named_after_the_class(algorithm, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == [f"{type(model).__name__}_1"]
     model.learn(10, tb_log_name="mine")
     assert (tmp_path / "mine_1").is_dir()
-
-
-def test_set_random_seed_after_load_is_reproducible(tmp_path):
-    model = TwoMemorySAC("MlpPolicy", Slider(), p_ec_schedule=1.0, seed=0, **TINY_SAC)
-    model.learn(100)
-    model.save(tmp_path / "2m_sac.zip")
-    obs = np.linspace(-1, 2, 7, dtype=np.float32).reshape(-1, 1)
-    copies = [TwoMemorySAC.load(tmp_path / "2m_sac.zip", env=Slider()) for _ in range(2)]
-    for _ in range(3):  # the first copy has drawn random numbers before it is seeded
-        copies[0].predict(obs, deterministic=False)
-    runs = []
-    for copy in copies:
-        copy.set_random_seed(5)
-        assert copy.policy.evaluation_memory() == EPISODIC
-        actions = [copy.predict(obs, deterministic=False)[0] for _ in range(3)]
-        copy.learn(100)
-        runs.append((actions, copy.policy.memory.state_dict(), copy.actor.state_dict()))
-    for a, b in zip(runs[0][0], runs[1][0]):
-        np.testing.assert_array_equal(a, b)
-    for key, value in runs[0][1].items():
-        np.testing.assert_array_equal(value, runs[1][1][key])
-    for key, value in runs[0][2].items():
-        assert th.equal(value, runs[1][2][key])
