@@ -1,4 +1,4 @@
-"""Speed of the episodic memories (issue 7): query latency, update cost, end-to-end training steps/s.
+"""Speed of the episodic memories : query latency, update cost, end-to-end training steps/s.
 
 Prints three tables (single thread: torch, faiss and BLAS pinned to one thread). Latencies are CPU
 time of the measuring thread (``time.thread_time_ns``), throughputs are given per wall second and per

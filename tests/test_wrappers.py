@@ -1,4 +1,4 @@
-"""Reset-free, goal-commanding and Go/Explore wrappers (issue 3, items 2-4)."""
+"""Reset-free, goal-commanding and Go/Explore wrappers."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ UMAZE_GOAL = "GCRL/PointUMazeGoal-v0"
 class LineGoalEnv(gym.Env):
     """Tiny goal env on a line: x += action, goal reached within 0.1; optional terminal state at x >= wall.
 
-    Declares rho_0 = {0} and rho_g* = {1} when ``declare=True`` (DESIGN.md contract 1).
+    Declares rho_0 = {0} and rho_g* = {1} when ``declare=True`` (the goal-env contract of the README).
     """
 
     metadata: dict[str, Any] = {"render_modes": []}

@@ -2,7 +2,7 @@
 
 Thesis Section 4.4 ("Feature embedding"): high-dimensional states are multiplied by a fixed matrix
 ``A`` with standard-normal entries, ``s_new = A s_ori``; distances are approximately preserved
-(Johnson-Lindenstrauss). MFEC/2M use the same projection to 8 dims (REFERENCE.md). The matrix is
+(Johnson-Lindenstrauss). MFEC/2M use the same projection to 8 dims (the authors' 2M code). The matrix is
 drawn from its own seeded generator, so equal seeds give equal keys, and it is saved with the model.
 """
 
