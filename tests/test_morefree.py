@@ -308,14 +308,61 @@ def test_executed_explore_actions_are_stored_with_a_random_explorer():
     np.testing.assert_allclose(moved, np.clip(actions * 0.1, -2 - heights[:-1], 2 - heights[:-1]), atol=1e-5)
 
 
-def test_ablation_and_preset_configs_build(tmp_path: Path):
+#: thesis Table 3.2 train ratios
+TRAIN_RATIO = {
+    "pointumaze": 2,
+    "sawyer_door": 5,
+    "tabletop": 1,
+    "fetch_push": 2,
+    "fetch_pick_and_place": 2,
+    "fetch_push_hard": 2,
+    "fetch_pick_and_place_hard": 2,
+    "ant": 2,
+}
+#: exploration alpha (env) and imagination alpha of each method
+METHOD_ALPHAS = {"morefree": (0.2, 0.2), "peg": (0.0, 0.0), "wo_bf": (0.0, 0.2), "wo_imag": (0.2, 0.0)}
+
+
+def test_zoo_configs_cover_every_task_method_and_preset():
     import yaml
 
     root = Path(__file__).resolve().parents[1] / "zoo_configs"
-    configs = sorted(root.glob("morefree_*.yml"))
-    assert len(configs) >= 8
-    for path in configs:
-        config = yaml.safe_load(path.read_text())
-        for hyperparams in config.values():
-            assert "train_ratio" in hyperparams, path.name
-            assert any("ResetFreeCallback" in str(c) for c in hyperparams.get("callback", [])), path.name
+    seen = set()
+    for path in sorted(root.glob("morefree_*.yml")):
+        stem = path.stem.removeprefix("morefree_")
+        task, method, preset = next(
+            (t, m, stem[len(t) + len(m) + 2 :])
+            for t in sorted(TRAIN_RATIO, key=len, reverse=True)
+            for m in METHOD_ALPHAS
+            if stem.startswith(f"{t}_{m}_")
+        )
+        seen.add((task, method, preset))
+        ((_, hyperparams),) = yaml.safe_load(path.read_text()).items()
+        assert hyperparams["train_ratio"] == TRAIN_RATIO[task], path.name
+        assert any("ResetFreeCallback" in str(c) for c in hyperparams["callback"]), path.name
+        (go_explore,) = (w for w in hyperparams["env_wrapper"] if "sb3_gcrl.morefree.morefree_go_explore" in w)
+        env_alpha, imagination_alpha = METHOD_ALPHAS[method]
+        assert go_explore["sb3_gcrl.morefree.morefree_go_explore"]["alpha"] == env_alpha, path.name
+        assert hyperparams.get("imagination_alpha", env_alpha) == imagination_alpha, path.name
+    for task in TRAIN_RATIO:
+        for preset in ("cpu", "thesis"):
+            assert {(task, "morefree", preset), (task, "peg", preset)} <= seen, (task, preset)
+    for task in ("pointumaze", "fetch_push_hard", "fetch_pick_and_place_hard", "ant"):
+        assert {(task, m, "cpu") for m in METHOD_ALPHAS} <= seen, task
+
+
+@pytest.mark.parametrize("method", sorted(METHOD_ALPHAS))
+def test_pointumaze_cpu_configs_train_with_the_alphas_they_state(method: str):
+    import yaml
+    from rl_zoo3.utils import get_wrapper_class
+
+    path = Path(__file__).resolve().parents[1] / "zoo_configs" / f"morefree_pointumaze_{method}_cpu.yml"
+    ((env_id, hyperparams),) = yaml.safe_load(path.read_text()).items()
+    wrapper = get_wrapper_class(hyperparams)
+    env = make_vec_env(env_id, n_envs=1, seed=0, wrapper_class=wrapper)
+    kwargs = {k: v for k, v in hyperparams.items() if k not in ("n_timesteps", "policy", "env_wrapper", "callback")}
+    kwargs.update(TINY_ALGO, policy_kwargs=TINY)  # tiny networks, same method settings
+    model = MoReFree("MultiInputPolicy", env, seed=0, **kwargs)
+    model.learn(80, callback=ResetFreeCallback())
+    assert model._alpha == METHOD_ALPHAS[method][1]
+    assert env.envs[0].get_wrapper_attr("task_goal_alpha") == METHOD_ALPHAS[method][0]
