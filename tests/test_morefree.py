@@ -366,3 +366,9 @@ def test_pointumaze_cpu_configs_train_with_the_alphas_they_state(method: str):
     model.learn(80, callback=ResetFreeCallback())
     assert model._alpha == METHOD_ALPHAS[method][1]
     assert env.envs[0].get_wrapper_attr("task_goal_alpha") == METHOD_ALPHAS[method][0]
+
+
+def test_learn_stops_at_total_timesteps_whatever_the_train_ratio():
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), train_ratio=1000)
+    model.learn(50)
+    assert model.num_timesteps == 50

@@ -42,7 +42,7 @@ CPU_NETWORK = {
     "actor_layers": 2,
     "ensemble_size": 3,
 }
-#: network sizes of DreamerV2's state-input (DMC) defaults, the backbone PEG and the thesis keep (GPU preset)
+#: thesis preset (GPU): sized after DreamerV2's DMC settings (PEG's backbone); not checked against PEG's config
 THESIS_NETWORK = {
     "deter": 200,
     "stoch": 32,
