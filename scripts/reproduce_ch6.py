@@ -10,13 +10,17 @@ one layout per seed: the thesis's "environment seeds"; ``--epsilons`` repeats ta
 rates, Table 6.2 averages epsilon in {0, 0.1, 0.3}).
 
 The chapter's metric is the greedy success at reaching *every* goal (Sec. 6.5.1), which the episodic evaluation of
-``sb3-gcrl compare`` (the env's own task) does not measure. The runs save their trained models, and this script
-evaluates each final model with :func:`~sb3_gcrl.post_exploration.evaluate_all_goals`: tabular tasks over every
-reachable cell, deep tasks over a fixed grid (FetchReach: 3x3x3 goals around the initial gripper position within
-the target range; PointUMaze: 4 points in each free cell of the U, at most 150 steps per goal). Tabular models
-also give the visitation entropy (Eq. 6.7), the coverage and the heatmaps (Fig. 6.4); for 2-D deep tasks the
-comparison report draws the visitation heatmap with its entropy. Outputs in ``--out``: one comparison folder per
-task (and layout / epsilon), ``ch6_results.json`` (one row per run), ``summary.md`` and ``heatmap_<task>.png``.
+``sb3-gcrl compare`` (the env's own task) does not measure. Every config lists
+:class:`~sb3_gcrl.post_exploration.AllGoalsEvalCallback`, which compare runs at each evaluation point and stores as
+the run's ``all_goals.csv``: tabular tasks over every reachable cell, deep tasks over a fixed grid (FetchReach:
+3x3x3 goals around the initial gripper position within the target range; PointUMaze: 4 points in each free cell of
+the U, at most 150 steps per goal), with the visitation entropy (Eq. 6.7) and coverage of the training data (tabular:
+reachable cells; deep: the bins of the post-exploration goal space). This script reads those files: curves over
+training, final value and AUC (normalised area under the curve, as the compare report); tabular runs also save their
+model, whose visit counts give the heatmaps (Fig. 6.4). Each comparison folder's report draws the same curves
+(``all_goals.png``, ``all_goals_entropy.png``). Outputs in ``--out``: one comparison folder per task (and layout /
+epsilon), ``ch6_results.json`` (one row per run), ``summary.md``, ``curves.png`` (all-goals success, Fig. 6.3 /
+6.5), ``entropy.png`` (visitation entropy over training) and ``heatmap_<task>.png``.
 
 Examples (docs/results.md)::
 
@@ -36,8 +40,14 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import pandas as pd
 
+from sb3_gcrl.analysis.curves import aggregate_curves
+from sb3_gcrl.analysis.plots import plot_learning_curves
+from sb3_gcrl.analysis.statistics import run_scores
 from sb3_gcrl.compare.presets import CH6_VARIANTS, config_methods, get_preset, run_preset
+from sb3_gcrl.compare.report import ALL_GOALS_METRIC
+from sb3_gcrl.compare.storage import ALL_GOALS_FILE
 
 #: tabular tasks: env id and whether each seed gets its own layout
 TABULAR_TASKS = {
@@ -45,25 +55,8 @@ TABULAR_TASKS = {
     "LavaGap": ("GCRL/LavaGapTabular-v0", True),
     "LavaCrossing": ("GCRL/LavaCrossingTabular-v0", True),
 }
-#: deep tasks: env id and the step cap per goal of the all-goals evaluation (None: the env's own time limit)
-DEEP_TASKS = {"FetchReach": ("FetchReach-v4", None), "PointUMaze": ("GCRL/PointUMazeGoal-v0", 150)}
-
-
-def deep_goal_grid(task: str, env: gym.Env) -> np.ndarray:
-    """Fixed evaluation goals over the reachable goal space (see the module docstring)."""
-    if task == "FetchReach":
-        centre, r = env.unwrapped.initial_gripper_xpos, env.unwrapped.target_range
-        axes = [np.linspace(c - r, c + r, 3) for c in centre]
-        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    maze = env.unwrapped.maze
-    offsets = np.array([[-0.25, -0.25], [-0.25, 0.25], [0.25, -0.25], [0.25, 0.25]])
-    cells = [
-        maze.cell_rowcol_to_xy(np.array([i, j]))
-        for i, row in enumerate(maze.maze_map)
-        for j, free in enumerate(row)
-        if free == 0
-    ]
-    return np.concatenate([c + offsets for c in cells])
+#: deep tasks: env id (their goal grids are named in the configs' AllGoalsEvalCallback)
+DEEP_TASKS = {"FetchReach": "FetchReach-v4", "PointUMaze": "GCRL/PointUMazeGoal-v0"}
 
 
 def _model_file(run_dir: Path) -> Path:
@@ -73,44 +66,32 @@ def _model_file(run_dir: Path) -> Path:
     return files[-1]
 
 
-def evaluate_run(task: str, run_dir: Path, spec: dict[str, Any]) -> dict[str, Any]:
-    """All-goals success of a finished run's saved model (+ entropy, coverage, visit counts for tabular tasks)."""
-    from sb3_gcrl.imgep import TabularGoalEnv, TabularIMGEP
-    from sb3_gcrl.post_exploration import evaluate_all_goals
-    from sb3_gcrl.zoo_config import zoo_config_section
-
+def load_run(task: str, run_dir: Path, spec: dict[str, Any]) -> dict[str, Any]:
+    """A finished run's all-goals curves (``all_goals.csv``) with their final values and AUC (+ visit counts of
+    the saved model for tabular tasks)."""
+    table = pd.read_csv(run_dir / ALL_GOALS_FILE)
+    scores = run_scores(table.assign(env=task, method=spec["method"], seed=spec["seed"]), ALL_GOALS_METRIC)
     row: dict[str, Any] = {
         "task": task,
         "variant": spec["method"],
         "seed": spec["seed"],
         "epsilon": spec["hyperparams"].get("epsilon"),
+        "timesteps": table["timesteps"].tolist(),
+        "success": table[ALL_GOALS_METRIC].tolist(),
+        "entropy_curve": table["visitation_entropy"].tolist(),
+        "coverage_curve": table["coverage"].tolist(),
+        "success_all_goals": float(scores["final"].iloc[0]),
+        "auc": float(scores["auc"].iloc[0]),
+        "entropy": float(table["visitation_entropy"].iloc[-1]),
+        "coverage": float(table["coverage"].iloc[-1]),
+        "n_goals": int(table["n_goals"].iloc[-1]),
     }
-    env_kwargs = spec["env_kwargs"]
     if task in TABULAR_TASKS:
-        model = TabularIMGEP.load(_model_file(run_dir), env=gym.make(spec["env_id"], **env_kwargs))
-        eval_env = TabularGoalEnv(gym.make(spec["env_id"], **env_kwargs))
-        success = evaluate_all_goals(model, eval_env)
-        counts = np.asarray(model.goal_space.counts)
-        row.update(
-            entropy=model.visitation_entropy(),
-            coverage=model.coverage(),
-            counts=counts.tolist(),
-            width=int(eval_env.unwrapped.width),
-        )
-    else:
-        from rl_zoo3.utils import ALGOS, get_wrapper_class
+        from sb3_gcrl.imgep import TabularIMGEP
 
-        # the eval env RL-Zoo builds from the run's config: its env_wrapper, left in episodic mode (only the
-        # training env is switched to post-exploration by the callback); reset(options={"goal": g}) commands g
-        section = zoo_config_section(Path(spec["config"]), spec["env_id"]) or {}
-        wrap = get_wrapper_class(section)
-        eval_env = gym.make(spec["env_id"], **env_kwargs)
-        eval_env = wrap(eval_env) if wrap is not None else eval_env
-        model = ALGOS[spec["algo"]].load(_model_file(run_dir), env=eval_env, device="cpu")
-        goals = deep_goal_grid(task, eval_env)
-        success = evaluate_all_goals(model, eval_env, goals, max_steps=DEEP_TASKS[task][1])
-    row["success_all_goals"] = float(success.mean())
-    row["n_goals"] = int(success.size)
+        env = gym.make(spec["env_id"], **spec["env_kwargs"])
+        model = TabularIMGEP.load(_model_file(run_dir), env=env)
+        row.update(counts=np.asarray(model.goal_space.counts).tolist(), width=int(env.unwrapped.width))
     return row
 
 
@@ -120,7 +101,7 @@ def run_task(task: str, args: argparse.Namespace) -> list[dict[str, Any]]:
         env_id, layout_per_seed = TABULAR_TASKS[task]
         preset, pattern = ("ch6-quick" if args.quick else "ch6"), f"post_exploration_{task.lower()}_{{name}}"
     else:
-        env_id, layout_per_seed = DEEP_TASKS[task][0], False
+        env_id, layout_per_seed = DEEP_TASKS[task], False
         preset, pattern = "ch6-deep", f"post_exploration_{task.lower()}_{args.algo}_{{name}}"
     seeds = list(range(args.seeds)) if args.seeds is not None else list(get_preset(preset).seeds)
     epsilons = args.epsilons if task in TABULAR_TASKS and args.epsilons else [None]
@@ -142,24 +123,26 @@ def run_task(task: str, args: argparse.Namespace) -> list[dict[str, Any]]:
                 n_workers=args.workers,
                 hyperparams={"epsilon": epsilon} if epsilon is not None else None,
                 env_kwargs=env_kwargs,
-                save_models=True,
+                save_models=task in TABULAR_TASKS,  # their visit counts give the heatmaps
                 title=f"{task}: post-exploration {' vs '.join(args.variants)}",
             )
             for spec in result.specs:
                 run_dir = folder / "runs" / spec.relative_dir
                 if not any(s.relative_dir == spec.relative_dir for s, _, _ in result.summary.failed):
-                    rows.append(evaluate_run(task, run_dir, spec.to_dict()))
+                    rows.append(load_run(task, run_dir, spec.to_dict()))
                     print(f"{task:12s} {spec.method:8s} seed={spec.seed} eps={epsilon} "
-                          f"all-goals success={rows[-1]['success_all_goals']:.3f}", flush=True)  # fmt: skip
+                          f"all-goals success={rows[-1]['success_all_goals']:.3f} (AUC {rows[-1]['auc']:.3f})",
+                          flush=True)  # fmt: skip
     return rows
 
 
 def summarise(rows: list[dict[str, Any]]) -> str:
-    """Markdown table: final all-goals success (median, mean +- se), entropy and coverage per task and variant,
-    and the paired differences (same seed, layout and epsilon) between variants."""
+    """Markdown tables: final all-goals success (median, mean +- se), its AUC, final entropy and coverage per task and
+    variant; the paired differences (same seed, layout and epsilon) between variants; a per-epsilon breakdown."""
     lines = [
-        "| task | variant | runs | success all goals: median | mean +- se | entropy (nats) median | coverage median |",
-        "|---|---|---|---|---|---|---|",
+        "| task | variant | runs | success all goals: median | mean +- se | AUC mean | entropy (nats) median | "
+        "coverage median |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     tasks = list(dict.fromkeys(row["task"] for row in rows))
     for task in tasks:
@@ -169,16 +152,16 @@ def summarise(rows: list[dict[str, Any]]) -> str:
                 continue
             final = np.array([row["success_all_goals"] for row in sel])
             se = final.std(ddof=1) / np.sqrt(len(final)) if len(final) > 1 else 0.0
-            entropy = np.median([row.get("entropy", np.nan) for row in sel])
-            coverage = np.median([row.get("coverage", np.nan) for row in sel])
             lines.append(
                 f"| {task} | {variant} | {len(sel)} | {np.median(final):.3f} | {final.mean():.3f} +- {se:.3f} | "
-                f"{entropy:.3f} | {coverage:.3f} |"
+                f"{np.mean([row['auc'] for row in sel]):.3f} | {np.median([row['entropy'] for row in sel]):.3f} | "
+                f"{np.median([row['coverage'] for row in sel]):.3f} |"
             )
     lines += [
         "",
-        "| task | comparison | pairs | final diff median | final wins | entropy diff median |",
-        "|---|---|---|---|---|---|",
+        "| task | comparison | pairs | AUC diff median | AUC wins | final diff median | entropy diff median | "
+        "entropy wins |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for task in tasks:
         by_key = {(row["variant"], row["seed"], row["epsilon"]): row for row in rows if row["task"] == task}
@@ -190,13 +173,57 @@ def summarise(rows: list[dict[str, Any]]) -> str:
             ]
             if not pairs:
                 continue
+            d_auc = np.array([a["auc"] - b["auc"] for a, b in pairs])
             d_final = np.array([a["success_all_goals"] - b["success_all_goals"] for a, b in pairs])
-            d_entropy = np.array([a.get("entropy", np.nan) - b.get("entropy", np.nan) for a, b in pairs])
+            d_entropy = np.array([a["entropy"] - b["entropy"] for a, b in pairs])
             lines.append(
-                f"| {task} | {variant} - {reference} | {len(pairs)} | {np.median(d_final):+.3f} | "
-                f"{int((d_final > 0).sum())}/{len(pairs)} | {np.median(d_entropy):+.3f} |"
+                f"| {task} | {variant} - {reference} | {len(pairs)} | {np.median(d_auc):+.3f} | "
+                f"{int((d_auc > 0).sum())}/{len(pairs)} | {np.median(d_final):+.3f} | {np.median(d_entropy):+.3f} | "
+                f"{int((d_entropy > 0).sum())}/{len(pairs)} |"
             )
+    epsilons = sorted({row["epsilon"] for row in rows if row["epsilon"] is not None})
+    if len(epsilons) > 1:
+        lines += ["", "| task | variant | " + " | ".join(f"eps={e:g}: final (AUC)" for e in epsilons) + " |"]
+        lines.append("|---|---|" + "---|" * len(epsilons))
+        for task in tasks:
+            for variant in CH6_VARIANTS:
+                cells = []
+                for eps in epsilons:
+                    sel = [r for r in rows if r["task"] == task and r["variant"] == variant and r["epsilon"] == eps]
+                    if sel:
+                        final = np.median([r["success_all_goals"] for r in sel])
+                        cells.append(f"{final:.3f} ({np.mean([r['auc'] for r in sel]):.3f})")
+                if cells:
+                    lines.append(f"| {task} | {variant} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def plot_curves(rows: list[dict[str, Any]], out: Path) -> list[Path]:
+    """All-goals success over training per task (Fig. 6.3 / 6.5: ``curves.png``) and, where every evaluation has
+    one, the visitation entropy of the training data (``entropy.png``); mean over runs with a bootstrap band."""
+    tidy = pd.concat(
+        [
+            pd.DataFrame(
+                {
+                    "env": row["task"],
+                    "method": row["variant"],
+                    "seed": f"{row['seed']}/{row['epsilon']}",  # one curve per run (seed, layout, epsilon)
+                    "timesteps": row["timesteps"],
+                    ALL_GOALS_METRIC: row["success"],
+                    "visitation_entropy": row["entropy_curve"],
+                }
+            )
+            for row in rows
+        ],
+        ignore_index=True,
+    )
+    written = []
+    for metric, name in ((ALL_GOALS_METRIC, "curves.png"), ("visitation_entropy", "entropy.png")):
+        counted = tidy.groupby("env")[metric].transform(lambda values: values.notna().all())
+        if counted.any():
+            plot_learning_curves(aggregate_curves(tidy[counted], metric), metric, path=out / name)
+            written.append(out / name)
+    return written
 
 
 def plot_heatmaps(rows: list[dict[str, Any]], out: Path) -> None:
@@ -248,6 +275,7 @@ def main(argv: list[str] | None = None) -> int:
     table = summarise(rows)
     (args.out / "summary.md").write_text(table + "\n")
     print(table)
+    plot_curves(rows, args.out)
     plot_heatmaps(rows, args.out)
     return 0
 

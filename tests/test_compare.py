@@ -639,3 +639,68 @@ def test_cli_prints_failures_and_announces_only_the_plot_it_wrote(tmp_path, monk
     out, err = capsys.readouterr()
     assert "curves.png" not in out and "no plot" in out
     assert "ValueError: learning_rate is not a schedule" in err and f"log: {log}" in err
+
+
+# ------------------------------------------------------------------------ all-goals evaluations (thesis Ch. 6)
+
+ALL_GOALS_ROW = {"timesteps": 0, "num_timesteps": 0, "all_goals_success": 0.5, "n_goals": 4}
+
+
+def test_tabular_imgep_run_records_all_goals_rows_at_its_evaluation_points(tmp_path):
+    """A ch6-quick-like run (TabularIMGEP, FourRooms config with its AllGoalsEvalCallback): all_goals.csv has finite
+    success, entropy and coverage at every step of evaluations.csv, and the report draws and tabulates them."""
+    methods = [parse_method(f"on=imgep:{ZOO_CONFIGS_DIR / 'post_exploration_fourrooms_on.yml'}")]
+    specs = plan_runs(methods, ["GCRL/FourRoomsTabular-v0"], [0], 1_000, 500, 1, {}, (), tmp_path)
+    output = tmp_path / "out"
+    run_dir = output / "runs" / specs[0].relative_dir
+    log = io.StringIO()
+    result = execute_run(specs[0], run_dir, log)
+    assert result.status == "finished", result.error
+    assert "eval_freq 10000 of the config replaced by the run's eval_freq 500" in log.getvalue()
+    write_run_result(run_dir, result)
+    assert is_finished(run_dir, specs[0])
+    evaluations, all_goals = pd.read_csv(run_dir / "evaluations.csv"), pd.read_csv(run_dir / "all_goals.csv")
+    assert all_goals["timesteps"].tolist() == evaluations["timesteps"].tolist() == [0, 500, 1_000]
+    values = all_goals[["all_goals_success", "visitation_entropy", "coverage"]].to_numpy()
+    assert np.isfinite(values).all() and (values[:, [0, 2]] <= 1).all() and values[-1, 1] > 0
+    summary = summarize(output, specs)
+    assert "success over all goals" in summary.all_goals_table
+    assert np.isfinite(summary.all_goals_scores[["final", "auc"]].to_numpy()).all()
+    write_outputs(output, summary, "ch6", "", 1.0)
+    report = (output / "report.md").read_text()
+    for name in ("all_goals.png", "all_goals_entropy.png"):
+        assert (output / name).stat().st_size > 0 and name in report
+    assert len(pd.read_csv(output / "all_goals_curves.csv")) == 3
+
+
+def test_runs_without_all_goals_evaluations_expect_no_all_goals_file(tmp_path):
+    spec = tiny_spec(tmp_path)
+    run_dir = write_finished_run(tmp_path / "out", spec)
+    assert json.loads((run_dir / "run.json").read_text())["n_all_goals_evaluations"] is None
+    assert not (run_dir / "all_goals.csv").exists() and is_finished(run_dir, spec)
+    assert summarize(tmp_path / "out", [spec]).all_goals_table == ""
+
+
+@pytest.mark.parametrize(
+    ("content", "problem"),
+    [(None, "is missing"), ("timesteps,all_goals_success\n", "no all-goals evaluation rows"),
+     ("timesteps,success\n0,1\n", "lacks the column(s) ['all_goals_success']"),
+     ("timesteps,all_goals_success\n0,\n", "column 'all_goals_success' has empty values (row 1)"),
+     ("timesteps,all_goals_success,coverage\n0,1,all\n", "column 'coverage' holds non-numeric")],
+)  # fmt: skip
+def test_unusable_all_goals_csv_makes_the_run_unfinished_and_is_named(tmp_path, content, problem):
+    spec = tiny_spec(tmp_path)
+    run_dir = tmp_path / "out" / "runs" / spec.relative_dir
+    row = {"timesteps": 0, "num_timesteps": 0, "mean_return": -1.0}
+    write_run_result(run_dir, RunResult(spec, "finished", [row], wall_time_s=1.0, all_goals=[ALL_GOALS_ROW]))
+    assert json.loads((run_dir / "run.json").read_text())["n_all_goals_evaluations"] == 1
+    assert is_finished(run_dir, spec)
+    if content is None:
+        (run_dir / "all_goals.csv").unlink()
+    else:
+        (run_dir / "all_goals.csv").write_text(content)
+    notes: list[str] = []
+    assert not is_finished(run_dir, spec, notes)  # redone on resume
+    assert len(notes) == 1 and str(run_dir / "all_goals.csv") in notes[0] and problem in notes[0]
+    summary = summarize(tmp_path / "out", [spec])
+    assert len(summary.failed) == 1 and problem in summary.failed[0][1]

@@ -261,3 +261,72 @@ def test_wrapper_passes_env_checkers_in_both_modes() -> None:
             env.set_training_mode(True)
         gym_check_env(env, skip_render_check=True)
         sb3_check_env(make(), warn=False)
+
+
+# ------------------------------------------------------------------------- all-goals evaluation (evaluation.py)
+
+
+def test_all_goals_callback_builds_the_tabular_eval_env_from_the_training_env_and_records_metrics() -> None:
+    """Without an eval env, a TabularIMGEP run is evaluated on TabularGoalEnv(gym.make(id, **kwargs)): the same
+    layout (env kwargs) as training; each row has the scheduled step, finite success, entropy and coverage."""
+    from sb3_gcrl.imgep import TabularGoalEnv, TabularIMGEP
+    from sb3_gcrl.post_exploration import AllGoalsEvalCallback
+    from sb3_gcrl.post_exploration.evaluation import ALL_GOALS_COLUMNS
+
+    model = TabularIMGEP("TabularGoalPolicy", gym.make("GCRL/LavaGapTabular-v0", layout_seed=3), seed=0)
+    callback = AllGoalsEvalCallback(eval_freq=500)
+    model.learn(1_000, callback=callback, log_interval=0)
+    assert isinstance(callback.eval_env, TabularGoalEnv)
+    assert callback.eval_env.unwrapped.spec.kwargs["layout_seed"] == 3
+    np.testing.assert_array_equal(callback.eval_env.reachable_goals, model.goal_env.reachable_goals)
+    assert [row["timesteps"] for row in callback.records] == [0, 500, 1_000]
+    for row in callback.records:
+        assert list(row) == list(ALL_GOALS_COLUMNS)
+        assert 0 <= row["all_goals_success"] <= 1 and row["n_goals"] == len(model.goal_env.reachable_goals)
+    first, last = callback.records[0], callback.records[-1]
+    assert first["visitation_entropy"] == 0.0 and first["coverage"] == 0.0  # nothing visited yet
+    # counts at the last evaluation (the agent updates them at the end of each episode)
+    assert 0 < last["visitation_entropy"] <= model.visitation_entropy() + 0.1
+    assert 0 < last["coverage"] <= model.coverage()
+
+
+def test_all_goals_callback_rebuilds_the_run_wrapper_for_deep_agents_and_names_its_goal_grid() -> None:
+    """Deep agents: the eval env is the registered env with the training env's recreatable wrappers (the
+    PostExplorationWrapper, episodic); ``goals="maze_cells"`` is 4 goals per free cell; entropy and coverage come
+    from the training envs' visit counts."""
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from sb3_gcrl.post_exploration import AllGoalsEvalCallback
+    from sb3_gcrl.post_exploration.metrics import training_visit_counts
+
+    kwargs = {"tau": 0.01, "goal_low": [-1.5, -1.5], "goal_high": [1.5, 1.5], "n_bins": 10}
+    env = make_vec_env(
+        "GCRL/PointUMazeGoal-v0",
+        wrapper_class=PostExplorationWrapper,
+        wrapper_kwargs={"n_pe": 5, "scheduler_kwargs": kwargs},
+    )
+    model = SAC("MultiInputPolicy", env, learning_starts=1_000, policy_kwargs={"net_arch": [8]}, seed=0)
+    callback = AllGoalsEvalCallback(eval_freq=100, goals="maze_cells", max_steps=5)
+    model.learn(200, callback=[PostExplorationCallback(require_executed_actions=False), callback])
+    assert isinstance(callback.eval_env, PostExplorationWrapper) and not callback.eval_env.training
+    assert callback.goals.shape == (28, 2)  # the U-maze has 7 free cells
+    assert [row["timesteps"] for row in callback.records] == [0, 100, 200]
+    counts = training_visit_counts(model.get_env())
+    assert counts is not None and counts.sum() > 0
+    assert callback.records[-1]["visitation_entropy"] == pytest.approx(visitation_entropy(counts))
+    assert callback.records[-1]["coverage"] == pytest.approx(coverage(counts))
+
+
+def test_all_goals_callback_refuses_unknown_goal_grids_and_grids_of_other_envs() -> None:
+    from sb3_gcrl.post_exploration import AllGoalsEvalCallback
+    from sb3_gcrl.post_exploration.evaluation import GOAL_GRIDS
+
+    with pytest.raises(ValueError, match="Unknown goal grid 'maze'.*maze_cells"):
+        AllGoalsEvalCallback(goals="maze")
+    with pytest.raises(ValueError, match="max_steps must be >= 1"):
+        AllGoalsEvalCallback(max_steps=0)
+    with pytest.raises(TypeError, match="needs a Fetch env"):
+        GOAL_GRIDS["fetch_target_grid"](gym.make("GCRL/PointUMazeGoal-v0"))
+    with pytest.raises(TypeError, match="needs a maze env"):
+        GOAL_GRIDS["maze_cells"](gym.make("GCRL/GrowingTreeGoal-v0"))

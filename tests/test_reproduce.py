@@ -231,7 +231,11 @@ def test_reproduce_ch6_quick(tmp_path: Path) -> None:
     rows = json.loads((tmp_path / "ch6_results.json").read_text())
     assert [row["variant"] for row in rows] == ["off", "on", "adaptive"]
     for row in rows:
-        for key in ("success_all_goals", "entropy", "coverage"):
+        for key in ("success_all_goals", "auc", "entropy", "coverage"):
             assert math.isfinite(row[key]) and 0 <= row[key] <= (10 if key == "entropy" else 1), key
         assert row["n_goals"] > 1
-    assert (tmp_path / "summary.md").is_file() and (tmp_path / "heatmap_FourRooms.png").is_file()
+        # the all-goals curve over training, at the comparison's evaluation points (all_goals.csv)
+        assert row["timesteps"] == [0, 1_000, 2_000] and np.isfinite(row["success"] + row["entropy_curve"]).all()
+    assert "| AUC mean |" in (tmp_path / "summary.md").read_text()
+    for name in ("heatmap_FourRooms.png", "curves.png", "entropy.png", "FourRooms/all_goals.png"):
+        assert (tmp_path / name).is_file(), name

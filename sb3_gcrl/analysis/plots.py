@@ -19,7 +19,12 @@ from matplotlib.colors import ListedColormap, LogNorm
 from matplotlib.figure import Figure
 
 #: axis labels of the curve metrics
-METRIC_LABELS: dict[str, str] = {"success_rate": "success rate", "mean_return": "evaluation return"}
+METRIC_LABELS: dict[str, str] = {
+    "success_rate": "success rate",
+    "mean_return": "evaluation return",
+    "all_goals_success": "success over all goals",
+    "visitation_entropy": "visitation entropy (nats)",
+}
 
 #: colours of the two memories of 2M (the thesis's Fig. 5.6 uses orange for EC and grey for RL)
 MEMORY_COLORS: dict[str, str] = {"ec": "#f28e2b", "rl": "#8c8c8c"}

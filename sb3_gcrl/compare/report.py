@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,16 +23,21 @@ from sb3_gcrl.analysis.plots import (
 from sb3_gcrl.analysis.statistics import aggregate_scores, probability_of_improvement, run_scores, visitation_entropy
 from sb3_gcrl.compare.run import RunSpec
 from sb3_gcrl.compare.storage import (
+    ALL_GOALS_FILE,
     EVALUATIONS_FILE,
     LOG_FILE,
     VISITED_FILE,
     atomic_write_text,
-    evaluations_problem,
     load_run_record,
+    result_files_problem,
 )
 
 #: default level of ``success_rate`` that counts as solved (for the "solved" columns)
 SUCCESS_THRESHOLD = 0.9
+#: metric of the all-goals curves (column of ``all_goals.csv``; thesis Sec. 6.5.1)
+ALL_GOALS_METRIC = "all_goals_success"
+#: metrics that are success rates (two decimals, "solved" columns)
+SUCCESS_METRICS = ("success_rate", ALL_GOALS_METRIC)
 
 
 @dataclass
@@ -47,6 +52,11 @@ class Summary:
     :param run_wall_times: wall time (s) of every finished run, as its worker measured it.
     :param run_dirs: ``(env, method) -> folders`` of the finished runs.
     :param table: the printed Markdown table.
+    :param all_goals_curves: every all-goals evaluation (``all_goals.csv``) of the finished runs that have one
+        (tidy; empty when none has).
+    :param all_goals_scores: per-run final and AUC of the all-goals success.
+    :param all_goals_summary: their aggregates per (env, method).
+    :param all_goals_table: ``all_goals_summary`` as Markdown ("" when no run has all-goals evaluations).
     """
 
     curves: pd.DataFrame
@@ -57,6 +67,10 @@ class Summary:
     table: str
     run_wall_times: list[float]
     run_dirs: dict[tuple[str, str], list[Path]]
+    all_goals_curves: pd.DataFrame = field(default_factory=pd.DataFrame)
+    all_goals_scores: pd.DataFrame = field(default_factory=pd.DataFrame)
+    all_goals_summary: pd.DataFrame = field(default_factory=pd.DataFrame)
+    all_goals_table: str = ""
 
 
 def _format_interval(value: float, low: float, high: float, digits: int) -> str:
@@ -76,7 +90,7 @@ def format_table(summary: pd.DataFrame, metrics: dict[str, str]) -> str:
     lines = []
     for row in summary.itertuples(index=False):
         metric = metrics[row.env]
-        digits = 2 if metric == "success_rate" else 1
+        digits = 2 if metric in SUCCESS_METRICS else 1
         solved_at = "-" if math.isnan(row.median_solved_at) else f"{row.median_solved_at:,.0f}"
         lines.append(
             [
@@ -87,7 +101,7 @@ def format_table(summary: pd.DataFrame, metrics: dict[str, str]) -> str:
                 _format_interval(row.final, row.final_low, row.final_high, digits),
                 _format_interval(row.auc, row.auc_low, row.auc_high, digits),
                 "IQM [95% CI]" if row.estimator == "IQM" else "mean [min, max]",
-                f"{row.n_solved}/{row.n_runs}" if metric == "success_rate" else "-",
+                f"{row.n_solved}/{row.n_runs}" if metric in SUCCESS_METRICS else "-",
                 solved_at,
             ]
         )
@@ -107,7 +121,8 @@ def summarize(
     min_runs_for_iqm: int = 3,
     metric: str = "auto",
 ) -> Summary:
-    """Load the planned runs from ``output`` and compute curves, per-run scores and aggregates.
+    """Load the planned runs from ``output`` and compute curves, per-run scores and aggregates (also of the
+    all-goals success of the runs that recorded it, with the same final window and solve threshold).
 
     :param output: comparison folder.
     :param specs: the runs of this comparison (others lying in the folder are ignored).
@@ -122,14 +137,16 @@ def summarize(
     if metric not in ("auto", *METRICS):
         raise ValueError(f"metric must be 'auto' or one of {METRICS}, got {metric!r}")
     metric_choice = metric
-    finished, failed, wall_times, run_dirs = [], [], [], {}
+    finished, failed, wall_times, run_dirs, all_goals_runs = [], [], [], {}, []
     for spec in specs:
         run_dir = output / "runs" / spec.relative_dir
         record, problem = load_run_record(run_dir)
         if problem is None and record is not None and record["status"] == "finished":
-            problem = evaluations_problem(run_dir / EVALUATIONS_FILE)
+            problem = result_files_problem(run_dir, record)
             if problem is None:
                 finished.append((spec.env_id, spec.method, spec.seed, run_dir / EVALUATIONS_FILE))
+                if record.get("n_all_goals_evaluations") is not None:
+                    all_goals_runs.append((spec.env_id, spec.method, spec.seed, run_dir / ALL_GOALS_FILE))
                 wall_times.append(float(record["wall_time_s"]))
                 run_dirs.setdefault((spec.env_id, spec.method), []).append(run_dir)
                 continue
@@ -159,7 +176,19 @@ def summarize(
     scores_table = _in_order(pd.concat(scores, ignore_index=True), order) if scores else pd.DataFrame()
     summary = _in_order(pd.concat(summaries, ignore_index=True), order) if summaries else pd.DataFrame()
     table = format_table(summary, metrics) if len(summary) else "(no finished runs)"
-    return Summary(curves, scores_table, summary, metrics, failed, table, wall_times, run_dirs)
+    result = Summary(curves, scores_table, summary, metrics, failed, table, wall_times, run_dirs)
+    if all_goals_runs:
+        threshold = SUCCESS_THRESHOLD if solve_threshold is None else solve_threshold
+        result.all_goals_curves = _in_order(load_curves(all_goals_runs), order)
+        result.all_goals_scores = _in_order(
+            run_scores(result.all_goals_curves, ALL_GOALS_METRIC, final_window, threshold), order
+        )
+        result.all_goals_summary = _in_order(
+            aggregate_scores(result.all_goals_scores, min_runs_for_iqm, planned_runs=planned), order
+        )
+        all_goals_metrics = dict.fromkeys(result.all_goals_summary["env"], ALL_GOALS_METRIC)
+        result.all_goals_table = format_table(result.all_goals_summary, all_goals_metrics)
+    return result
 
 
 def _in_order(table: pd.DataFrame, order: dict[tuple[str, str], int]) -> pd.DataFrame:
@@ -170,8 +199,20 @@ def _in_order(table: pd.DataFrame, order: dict[tuple[str, str], int]) -> pd.Data
     return table.iloc[sorted(range(len(table)), key=rank.__getitem__)].reset_index(drop=True)
 
 
+def _aggregate(curves: pd.DataFrame, metrics: dict[str, str]) -> pd.DataFrame:
+    """Mean curves with bootstrap bands per (env, method), methods in the order of ``curves``."""
+    methods = {method: rank for rank, method in enumerate(dict.fromkeys(curves["method"]))}
+    return pd.concat(
+        [
+            aggregate_curves(group, metrics[env_id]).sort_values("method", key=lambda m: m.map(methods), kind="stable")
+            for env_id, group in curves.groupby("env", sort=False)
+        ]
+    )
+
+
 def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, wall_time_s: float) -> list[Path]:
-    """Write ``curves.csv``, ``scores.csv``, ``summary.csv``, ``curves.png`` and ``report.md`` into ``output``.
+    """Write ``curves.csv``, ``scores.csv``, ``summary.csv``, ``curves.png`` and ``report.md`` into ``output``
+    (and the all-goals files of :func:`_all_goals_outputs` when runs recorded all-goals evaluations).
 
     :param output: comparison folder.
     :param summary: from :func:`summarize`.
@@ -186,16 +227,9 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
     atomic_write_text(output / "summary.csv", summary.summary.to_csv(index=False))
     figure_md = ""
     if len(summary.curves):
-        methods = {method: rank for rank, method in enumerate(dict.fromkeys(summary.curves["method"]))}
-        aggregated = pd.concat(
-            [
-                aggregate_curves(group, summary.metrics[env_id]).sort_values(
-                    "method", key=lambda m: m.map(methods), kind="stable"
-                )
-                for env_id, group in summary.curves.groupby("env", sort=False)
-            ]
-        )
+        aggregated = _aggregate(summary.curves, summary.metrics)
         # the figure gets a short title (the report's may be a sentence); panels are titled by env
+        methods = dict.fromkeys(summary.curves["method"])
         plot_learning_curves(aggregated, summary.metrics, path=output / "curves.png", title=" vs ".join(methods))
         written.append(output / "curves.png")
         figure_md = "![learning curves](curves.png)\n" + _memory_choice_figures(output, summary)
@@ -219,6 +253,9 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
         "",
     ]
     lines += _improvement_section(summary)
+    all_goals_files, all_goals_md = _all_goals_outputs(output, summary)
+    written += all_goals_files
+    lines += all_goals_md
     if summary.failed:
         lines += ["## Failed or missing runs", ""]
         for spec, error, log in summary.failed:
@@ -234,6 +271,45 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
     lines.append(f"Wall time of this invocation (resumed runs cost nothing): {wall_time_s:.0f} s.")
     atomic_write_text(output / "report.md", "\n".join(lines) + "\n")
     return [*written, output / "report.md"]
+
+
+def _all_goals_outputs(output: Path, summary: Summary) -> tuple[list[Path], list[str]]:
+    """The all-goals results (thesis Sec. 6.5.1, Fig. 6.3 / 6.5): ``all_goals_curves.csv``, ``all_goals_scores.csv``,
+    ``all_goals_summary.csv``, ``all_goals.png`` and, where every evaluation has one, the visitation entropy
+    curves ``all_goals_entropy.png`` (Eq. 6.7); with their report section.
+
+    :return: the files written and the report lines (both empty when no run has all-goals evaluations).
+    """
+    curves = summary.all_goals_curves
+    if not len(curves):
+        return [], []
+    names = ("all_goals_curves.csv", "all_goals_scores.csv", "all_goals_summary.csv")
+    for name, table in zip(names, (curves, summary.all_goals_scores, summary.all_goals_summary)):
+        atomic_write_text(output / name, table.to_csv(index=False))
+    written = [output / name for name in names]
+    methods = " vs ".join(dict.fromkeys(curves["method"]))
+    metrics = dict.fromkeys(curves["env"], ALL_GOALS_METRIC)
+    plot_learning_curves(_aggregate(curves, metrics), metrics, path=output / "all_goals.png", title=methods)
+    written.append(output / "all_goals.png")
+    lines = [
+        "## Success over all goals (thesis Sec. 6.5.1)",
+        "",
+        "Greedy success at reaching every goal of the task (tabular: every reachable cell; deep: the goal grid of "
+        "the run's AllGoalsEvalCallback), at the evaluation points of the curves above; final, AUC and CIs as "
+        "in the table above.",
+        "",
+        summary.all_goals_table,
+        "",
+        "![success over all goals](all_goals.png)",
+    ]
+    counted = curves.groupby("env")["visitation_entropy"].transform(lambda values: values.notna().all())
+    if counted.any():
+        entropy_metrics = dict.fromkeys(curves.loc[counted, "env"], "visitation_entropy")
+        aggregated = _aggregate(curves[counted], entropy_metrics)
+        plot_learning_curves(aggregated, entropy_metrics, path=output / "all_goals_entropy.png", title=methods)
+        written.append(output / "all_goals_entropy.png")
+        lines += ["", "![visitation entropy of the training data (Eq. 6.7)](all_goals_entropy.png)"]
+    return written, [*lines, ""]
 
 
 def _memory_choice_figures(output: Path, summary: Summary) -> str:

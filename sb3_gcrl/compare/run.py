@@ -3,7 +3,9 @@
 A run is exactly what ``rl_zoo3 train --algo ALGO --env ENV -conf CONFIG --seed SEED -n BUDGET`` builds
 (hyperparameters, ``env_wrapper``, ``normalize``, YAML ``callback``s...), except that the zoo's
 ``EvalCallback`` is replaced by :class:`~sb3_gcrl.compare.evaluation.EvaluationRecorder` (evaluation
-schedule in env steps, success rate, rows kept in memory for the per-run CSV).
+schedule in env steps, success rate, rows kept in memory for the per-run CSV). A YAML ``callback`` that is an
+:class:`~sb3_gcrl.post_exploration.AllGoalsEvalCallback` (thesis Ch. 6) is evaluated at the run's evaluation points
+too, and its rows (all-goals success, visitation entropy, coverage) are returned for ``all_goals.csv``.
 """
 
 from __future__ import annotations
@@ -98,7 +100,8 @@ class RunResult:
     """Outcome of a run: ``status`` is ``"finished"`` or ``"failed"`` (then ``error`` holds the traceback).
 
     ``visited_goals`` holds up to :data:`MAX_VISITED_POINTS` achieved goals of the training data (2-D goal spaces
-    of off-policy agents only, else None), for state-visitation heatmaps.
+    of off-policy agents only, else None), for state-visitation heatmaps. ``all_goals`` holds the rows of the
+    run's :class:`~sb3_gcrl.post_exploration.AllGoalsEvalCallback` (None when its config has none).
     """
 
     spec: RunSpec
@@ -108,6 +111,7 @@ class RunResult:
     error: str = ""
     log: str = ""
     visited_goals: np.ndarray | None = None
+    all_goals: list[dict[str, float]] | None = None
 
 
 #: cap on the achieved goals kept per run for visitation heatmaps (evenly spaced over the replay buffer)
@@ -134,6 +138,42 @@ def visited_goals(model: Any, max_points: int = MAX_VISITED_POINTS) -> np.ndarra
         return None
     keep = np.unique(np.linspace(0, len(goals) - 1, min(len(goals), max_points)).astype(np.int64))
     return goals[keep].astype(np.float32)
+
+
+def all_goals_callback(callbacks: list[Any], eval_freq: int) -> Any | None:
+    """The :class:`~sb3_gcrl.post_exploration.AllGoalsEvalCallback` among a run's callbacks, put on the run's schedule.
+
+    Its ``eval_freq`` is set to the run's, so that its rows have the ``timesteps`` of ``evaluations.csv``; a
+    different value of the config is replaced, which is printed (to the run's log).
+
+    :param callbacks: the run's callbacks (RL-Zoo's ``exp_manager.callbacks``; ``CallbackList``s are searched).
+    :param eval_freq: the run's env steps between evaluations.
+    :return: the callback, or None when there is none.
+    :raises ValueError: more than one (their rows would compete for one ``all_goals.csv``).
+    """
+    from stable_baselines3.common.callbacks import CallbackList
+
+    from sb3_gcrl.post_exploration import AllGoalsEvalCallback
+
+    found: list[AllGoalsEvalCallback] = []
+    pending = list(callbacks)
+    while pending:
+        callback = pending.pop(0)
+        if isinstance(callback, CallbackList):
+            pending[:0] = callback.callbacks
+        elif isinstance(callback, AllGoalsEvalCallback):
+            found.append(callback)
+    if len(found) > 1:
+        raise ValueError(f"The config lists {len(found)} AllGoalsEvalCallback callbacks; keep one")
+    if not found:
+        return None
+    if found[0].eval_freq != eval_freq:
+        print(
+            f"AllGoalsEvalCallback: eval_freq {found[0].eval_freq} of the config replaced by the run's eval_freq "
+            f"{eval_freq} (all-goals rows at the run's evaluation points)"
+        )
+        found[0].eval_freq = eval_freq
+    return found[0]
 
 
 def prepare_process(gym_packages: tuple[str, ...] = (), single_thread: bool = True) -> None:
@@ -182,10 +222,10 @@ def execute_run(
     :param run_dir: folder for RL-Zoo's own outputs (``zoo/``: config.yml, monitor.csv, model).
     :param log_file: receives the run's stdout/stderr.
     :param report_progress: called with env-step increments (progress bars).
-    :return: the run's result with its evaluation rows.
+    :return: the run's result with its evaluation rows (and all-goals rows).
     """
     start = time.perf_counter()
-    recorder = None
+    recorder = all_goals = None
     try:
         with contextlib.redirect_stdout(log_file), contextlib.redirect_stderr(log_file):
             prepare_process(spec.gym_packages)
@@ -212,6 +252,7 @@ def execute_run(
             setup = exp_manager.setup_experiment()
             assert setup is not None  # None only in hyperparameter-optimisation mode
             model, _ = setup
+            all_goals = all_goals_callback(exp_manager.callbacks, spec.eval_freq)
             eval_env = exp_manager.create_envs(1, eval_env=True)
             eval_env.seed(spec.seed + EVAL_SEED_OFFSET)
             recorder = EvaluationRecorder(
@@ -232,9 +273,17 @@ def execute_run(
             if spec.save_model:
                 exp_manager.save_trained_model(model)
         wall_time = time.perf_counter() - start
-        return RunResult(spec, "finished", recorder.records, wall_time, visited_goals=visited_goals(model))
+        return RunResult(
+            spec,
+            "finished",
+            recorder.records,
+            wall_time,
+            visited_goals=visited_goals(model),
+            all_goals=all_goals.records if all_goals is not None else None,
+        )
     except Exception:
         error = traceback.format_exc()
         print(error, file=log_file)
         records = recorder.records if recorder is not None else []
-        return RunResult(spec, "failed", records, time.perf_counter() - start, error=error)
+        all_goals_records = all_goals.records if all_goals is not None else None
+        return RunResult(spec, "failed", records, time.perf_counter() - start, error=error, all_goals=all_goals_records)

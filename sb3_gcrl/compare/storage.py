@@ -7,11 +7,14 @@
       comparison.json            settings of the last invocation
       runs/ENV/METHOD/seed_S/
         evaluations.csv          one row per evaluation (see EVALUATION_COLUMNS)
+        all_goals.csv            all-goals success, visitation entropy, coverage at the evaluation points (runs
+                                 whose config has an AllGoalsEvalCallback; see ALL_GOALS_COLUMNS)
         run.json                 spec, status, wall time, error; written last (its presence = run ended)
         train.log                stdout/stderr of the run
         visited_goals.npy        achieved goals of the training data (2-D goal spaces of off-policy agents)
         zoo/                     RL-Zoo's own outputs (config.yml, args.yml, monitor.csv, model if saved)
-      curves.csv scores.csv summary.csv curves.png report.md (+ memory_*.png, visitation_*.png)
+      curves.csv scores.csv summary.csv curves.png report.md (+ memory_*.png, visitation_*.png,
+      all_goals_curves.csv all_goals_scores.csv all_goals_summary.csv all_goals.png all_goals_entropy.png)
 """
 
 from __future__ import annotations
@@ -33,14 +36,18 @@ import pandas as pd
 
 from sb3_gcrl.compare.evaluation import EVALUATION_COLUMNS
 from sb3_gcrl.compare.run import RunResult, RunSpec
+from sb3_gcrl.post_exploration.evaluation import ALL_GOALS_COLUMNS
 
 RUN_FILE = "run.json"
 VISITED_FILE = "visited_goals.npy"
 EVALUATIONS_FILE = "evaluations.csv"
+ALL_GOALS_FILE = "all_goals.csv"
 LOG_FILE = "train.log"
 LOCK_FILE = "compare.lock"
 #: columns every ``evaluations.csv`` must have, with numbers in every row
 REQUIRED_EVALUATION_COLUMNS = ("timesteps", "mean_return")
+#: columns every ``all_goals.csv`` must have, with numbers in every row
+REQUIRED_ALL_GOALS_COLUMNS = ("timesteps", "all_goals_success")
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -66,22 +73,29 @@ def atomic_write_text(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode())
 
 
-def evaluations_to_csv(evaluations: list[dict[str, float]]) -> str:
-    """CSV text of evaluation rows (header = :data:`EVALUATION_COLUMNS`)."""
+def evaluations_to_csv(evaluations: list[dict[str, float]], columns: tuple[str, ...] = EVALUATION_COLUMNS) -> str:
+    """CSV text of evaluation rows.
+
+    :param evaluations: the rows.
+    :param columns: the header (:data:`EVALUATION_COLUMNS`, or :data:`ALL_GOALS_COLUMNS` for all-goals rows).
+    """
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(EVALUATION_COLUMNS), lineterminator="\n")
+    writer = csv.DictWriter(buffer, fieldnames=list(columns), lineterminator="\n")
     writer.writeheader()
     writer.writerows(evaluations)
     return buffer.getvalue()
 
 
 def write_run_result(run_dir: Path, result: RunResult) -> None:
-    """Store a run's result: ``evaluations.csv`` first, then ``run.json`` (the commit marker), both atomically.
+    """Store a run's result: ``evaluations.csv`` (and ``all_goals.csv``) first, then ``run.json`` (the commit
+    marker, which records whether the run has all-goals rows), all atomically.
 
     :param run_dir: the run's folder.
     :param result: what :func:`~sb3_gcrl.compare.run.execute_run` returned.
     """
     atomic_write_text(run_dir / EVALUATIONS_FILE, evaluations_to_csv(result.evaluations))
+    if result.all_goals is not None:
+        atomic_write_text(run_dir / ALL_GOALS_FILE, evaluations_to_csv(result.all_goals, ALL_GOALS_COLUMNS))
     if result.log:  # runs on Ray return their log; local runs wrote it in place
         atomic_write_text(run_dir / LOG_FILE, result.log)
     if result.visited_goals is not None:
@@ -92,6 +106,8 @@ def write_run_result(run_dir: Path, result: RunResult) -> None:
         "status": result.status,
         "wall_time_s": result.wall_time_s,
         "n_evaluations": len(result.evaluations),
+        # None: the run has no all-goals evaluation (no all_goals.csv is expected)
+        "n_all_goals_evaluations": None if result.all_goals is None else len(result.all_goals),
         "error": result.error,
         "spec": result.spec.to_dict(),
     }
@@ -133,13 +149,18 @@ def read_run_record(run_dir: Path) -> dict[str, Any] | None:
     return load_run_record(run_dir)[0]
 
 
-def evaluations_problem(path: Path) -> str | None:
-    """What is wrong with an ``evaluations.csv``, or None when it is usable.
+def table_problem(
+    path: Path, columns: tuple[str, ...], required: tuple[str, ...], rows: str = "evaluation rows"
+) -> str | None:
+    """What is wrong with a per-run CSV of evaluation rows, or None when it is usable.
 
-    Usable: a CSV with at least one row and numbers in every row of :data:`REQUIRED_EVALUATION_COLUMNS`; the
-    other metric columns (``success_rate``...) may be empty (NaN) but must be numeric.
+    Usable: a CSV with at least one row and numbers in every row of the ``required`` columns; the other
+    ``columns`` may be empty (NaN) but must be numeric.
 
     :param path: the file.
+    :param columns: the columns the file may have (checked when present).
+    :param required: the columns it must have, filled.
+    :param rows: what its rows are (for the message).
     :return: a sentence naming the file and the problem, or None.
     """
     try:
@@ -148,25 +169,51 @@ def evaluations_problem(path: Path) -> str | None:
         return f"{path} is missing"
     except (OSError, UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError) as error:
         return f"{path} cannot be parsed as CSV ({type(error).__name__}: {str(error).strip()})"
-    missing = [column for column in REQUIRED_EVALUATION_COLUMNS if column not in table.columns]
+    missing = [column for column in required if column not in table.columns]
     if missing:
         return f"{path} lacks the column(s) {missing} (its columns: {list(table.columns)})"
     if table.empty:
-        return f"{path} has a header but no evaluation rows"
-    for column in [c for c in EVALUATION_COLUMNS if c in table.columns]:
+        return f"{path} has a header but no {rows}"
+    for column in [c for c in columns if c in table.columns]:
         numbers = pd.to_numeric(table[column], errors="coerce")
         bad = table[column][numbers.isna() & table[column].notna()]
         if len(bad):
             return f"{path}: column {column!r} holds non-numeric values (row {bad.index[0] + 1}: {bad.iloc[0]!r})"
-        if column in REQUIRED_EVALUATION_COLUMNS and numbers.isna().any():
+        if column in required and numbers.isna().any():
             return f"{path}: column {column!r} has empty values (row {int(numbers.isna().to_numpy().argmax()) + 1})"
     return None
+
+
+def evaluations_problem(path: Path) -> str | None:
+    """What is wrong with an ``evaluations.csv`` (:func:`table_problem` with :data:`EVALUATION_COLUMNS`, of which
+    :data:`REQUIRED_EVALUATION_COLUMNS` filled), or None when it is usable."""
+    return table_problem(path, EVALUATION_COLUMNS, REQUIRED_EVALUATION_COLUMNS)
+
+
+def all_goals_problem(path: Path) -> str | None:
+    """What is wrong with an ``all_goals.csv`` (:func:`table_problem` with :data:`ALL_GOALS_COLUMNS`, of which
+    :data:`REQUIRED_ALL_GOALS_COLUMNS` filled), or None when it is usable."""
+    return table_problem(path, ALL_GOALS_COLUMNS, REQUIRED_ALL_GOALS_COLUMNS, "all-goals evaluation rows")
+
+
+def result_files_problem(run_dir: Path, record: dict[str, Any]) -> str | None:
+    """What is wrong with the result files of a finished run, or None when they are usable.
+
+    :param run_dir: the run's folder.
+    :param record: its ``run.json`` (``n_all_goals_evaluations`` not None: an ``all_goals.csv`` is expected).
+    :return: the problem of ``evaluations.csv``, else of the expected ``all_goals.csv``, else None.
+    """
+    problem = evaluations_problem(run_dir / EVALUATIONS_FILE)
+    if problem is None and record.get("n_all_goals_evaluations") is not None:
+        problem = all_goals_problem(run_dir / ALL_GOALS_FILE)
+    return problem
 
 
 def is_finished(run_dir: Path, spec: RunSpec, notes: list[str] | None = None) -> bool:
     """True when the run in ``run_dir`` finished with exactly ``spec`` (so it may be skipped).
 
-    A ``run.json`` or ``evaluations.csv`` that exists but cannot be used makes the run unfinished (it is redone).
+    A ``run.json``, ``evaluations.csv`` or expected ``all_goals.csv`` that cannot be used makes the run unfinished
+    (it is redone).
 
     :param run_dir: the run's folder.
     :param spec: the run as planned now.
@@ -192,7 +239,7 @@ def is_finished(run_dir: Path, spec: RunSpec, notes: list[str] | None = None) ->
             f"{run_dir} holds a finished run made with other settings ({details}). "
             "Use another --out folder, or pass --overwrite to redo such runs."
         )
-    problem = evaluations_problem(run_dir / EVALUATIONS_FILE)
+    problem = result_files_problem(run_dir, record)
     if problem is not None and notes is not None:
         notes.append(problem)
     return problem is None

@@ -8,6 +8,7 @@ continuous spaces are discretised per dimension by the shared :class:`~sb3_gcrl.
 from __future__ import annotations
 
 import numpy as np
+from stable_baselines3.common.vec_env import VecEnv
 
 
 def visitation_entropy(counts: np.ndarray, base: float | None = None) -> float:
@@ -51,3 +52,19 @@ def coverage(counts: np.ndarray, reachable: np.ndarray | None = None) -> float:
     if n_reachable == 0:
         raise ValueError("reachable mask selects no bin")
     return float(np.count_nonzero(counts[reachable]) / n_reachable)
+
+
+def training_visit_counts(env: VecEnv) -> np.ndarray | None:
+    """Visit counts of the goal-space bins, summed over the training envs that keep them.
+
+    :param env: training envs; those wrapped in a :class:`~sb3_gcrl.wrappers.GoalCommandWrapper` with a
+        visited-goal scheduler (e.g. :class:`~sb3_gcrl.post_exploration.PostExplorationWrapper`, ``novelty``)
+        expose its ``goal_space``.
+    :return: the summed ``counts``, or None when no env counts visits.
+    """
+    if not env.has_attr("goal_space"):
+        return None
+    spaces = [space for space in env.get_attr("goal_space") if space is not None]
+    if not spaces:
+        return None
+    return np.sum([space.counts for space in spaces], axis=0)
