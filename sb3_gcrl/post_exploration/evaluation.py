@@ -216,6 +216,11 @@ class AllGoalsEvalCallback(BaseCallback):
         if self._last_eval == self.num_timesteps:
             return  # on_training_end may follow an evaluation at the same step
         self._last_eval = self.num_timesteps
+        if self.eval_env is None:  # built at the first evaluation (the start of training)
+            self.eval_env = self._build_eval_env()
+            self.eval_env.reset(seed=None if self.model.seed is None else self.model.seed + 1)
+        if isinstance(self.goals, str):
+            self.goals = GOAL_GRIDS[self.goals](self.eval_env)
         success = evaluate_all_goals(self.model, self.eval_env, self.goals, self.max_steps)  # type: ignore[arg-type]
         entropy, visited = self._visit_statistics()
         self.timesteps.append(self.num_timesteps)
@@ -248,11 +253,6 @@ class AllGoalsEvalCallback(BaseCallback):
         return visitation_entropy(counts), coverage(counts)
 
     def _on_training_start(self) -> None:
-        if self.eval_env is None:
-            self.eval_env = self._build_eval_env()
-            self.eval_env.reset(seed=None if self.model.seed is None else self.model.seed + 1)
-        if isinstance(self.goals, str):
-            self.goals = GOAL_GRIDS[self.goals](self.eval_env)
         self._scheduled = self.num_timesteps
         self._evaluate()
         self._next_eval = (self.num_timesteps // self.eval_freq + 1) * self.eval_freq
