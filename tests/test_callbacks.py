@@ -122,3 +122,42 @@ def test_visitation_callback_logs_and_saves(tmp_path) -> None:
     saved = np.load(tmp_path / "visitation.npz")
     assert saved["hist"].sum() <= 300 and saved["hist"].shape == (50, 50)
     assert os.path.getsize(tmp_path / "visitation.png") > 1000
+
+
+def test_reset_free_training_logs_rollout_curves_per_segment(tmp_path) -> None:
+    import pandas as pd
+    from stable_baselines3.common.logger import configure
+
+    model = make_model(n_envs=2)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(600, callback=ResetFreeCallback(log_freq=100))
+    # SB3's own episode statistics come from the segments (one Go + Explore, at most EVAL_HORIZON steps) ...
+    lengths = [episode["l"] for episode in model.ep_info_buffer]
+    assert len(lengths) >= 10 and max(lengths) <= EVAL_HORIZON
+    assert len(model.ep_success_buffer) == len(lengths)
+    progress = pd.read_csv(tmp_path / "progress.csv")
+    assert progress["rollout/ep_len_mean"].dropna().between(1, EVAL_HORIZON).all()
+    assert "rollout/success_rate" in progress
+    # ... and the commanded goals' success per kind (thesis names of Algorithm 3's goals)
+    kinds = {column.removeprefix("rollout/goal_success_") for column in progress if "goal_success_" in column}
+    assert {"exploratory", "evaluation"} <= kinds <= {"evaluation", "initial", "exploratory"}
+    assert progress["rollout/goal_success_exploratory"].dropna().between(0, 1).all()
+
+
+def test_goal_success_log_by_hand() -> None:
+    from stable_baselines3.common.logger import Logger
+
+    from sb3_gcrl.callbacks.segments import GoalSuccessLog
+
+    log, logger = GoalSuccessLog(window=2), Logger(None, [])
+    segment = [{"goal_kind": "forward", "is_success": True}, {"goal_kind": "back", "is_success": False}]
+    log.update(segment, [True, False], logger)  # the second env's segment has not ended
+    assert logger.name_to_value == {"rollout/goal_success_evaluation": 1.0}
+    log.update([{"goal_kind": "env", "is_success": False}, {"is_success": True}], [True, True], logger)
+    log.update([{"goal_kind": "forward", "is_success": False}, {}], [True, False], logger)
+    assert logger.name_to_value["rollout/goal_success_evaluation"] == 0.0  # window 2: the first success dropped
+    logger.dump()
+    log.update([{}], [False], logger)  # every step re-records the current rates for the next dump
+    assert logger.name_to_value == {"rollout/goal_success_evaluation": 0.0}
+    with pytest.raises(ValueError, match="window must be >= 1"):
+        GoalSuccessLog(window=0)

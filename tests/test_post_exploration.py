@@ -263,6 +263,27 @@ def test_wrapper_passes_env_checkers_in_both_modes() -> None:
         sb3_check_env(make(), warn=False)
 
 
+def test_episodes_that_end_at_the_goal_reach_the_monitor_csv_and_sb3(tmp_path: Path) -> None:
+    """The Monitor below the wrapper sees only time-limit episodes; the wrapper reports every IMGEP episode."""
+    from stable_baselines3.common.monitor import Monitor, load_results
+
+    monitor = Monitor(gym.make("GCRL/GrowingTreeGoal-v0"), str(tmp_path / "0"), info_keywords=("is_success",))
+    env = PostExplorationWrapper(monitor, n_pe=3, scheduler_kwargs=TREE_GOALS)
+    env.set_training_mode(True)
+    zero = np.zeros(1, dtype=np.float32)
+    env.reset(seed=0, options={"goal": [0.0]})  # reached at the first step, then 3 post-exploration steps
+    for _ in range(4):
+        *_, truncated, info = env.step(zero)
+    assert truncated and info["episode"]["l"] == 4 and info["is_success"] and info["goal_kind"] == "explore"
+    env.reset(options={"goal": [1.5]})
+    for _ in range(2):
+        *_, truncated, info = env.step(zero)
+    assert not truncated and "episode" not in info
+    env.close()
+    rows = load_results(str(tmp_path))
+    assert list(rows.l) == [4] and list(rows.is_success) == [True]
+
+
 # ------------------------------------------------------------------------- all-goals evaluation (evaluation.py)
 
 

@@ -17,18 +17,18 @@ ENV_ID = "GCRL/PointUMazeGoal-v0"
 FAST = ["learning_starts:400", "batch_size:32", "policy_kwargs:dict(net_arch=[16])"]
 
 
-def zoo_train(config: Path, folder: Path, steps: int, eval_freq: int) -> Path:
-    """Run ``python -m rl_zoo3.train`` (what ``sb3-gcrl train`` wraps) with a tiny budget; return the run folder."""
+def zoo_train(config: Path, folder: Path, steps: int, eval_freq: int) -> tuple[Path, str]:
+    """Run ``python -m rl_zoo3.train`` (what ``sb3-gcrl train`` wraps) with a tiny budget; the run folder, stdout."""
     cmd = [
         sys.executable, "-m", "rl_zoo3.train", "--algo", "sac", "--env", ENV_ID, "-conf", str(config),
         "--gym-packages", "sb3_gcrl", "-n", str(steps), "--eval-freq", str(eval_freq), "--eval-episodes", "1",
-        "--seed", "0", "--num-threads", "1", "-f", str(folder), "-params", *FAST,
+        "--seed", "0", "--num-threads", "1", "--log-interval", "1", "-f", str(folder), "-params", *FAST,
     ]  # fmt: skip
     result = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=900)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     runs = sorted(folder.glob(f"sac/{ENV_ID.replace('/', '-')}_*"))
     assert runs, result.stdout[-2000:]
-    return runs[-1]
+    return runs[-1], result.stdout
 
 
 def test_configs_cover_the_methods_of_chapter_3() -> None:
@@ -48,21 +48,42 @@ def test_every_config_states_alpha_and_each_horizon_once(config: Path) -> None:
     assert text.count("hard_reset_every:") <= 1
 
 
-def test_zoo_evaluation_is_episodic_while_training_is_reset_free(tmp_path: Path) -> None:
-    run = zoo_train(REPO / "zoo_configs" / "reset_free_pointumaze_morefree.yml", tmp_path, steps=600, eval_freq=300)
+def test_zoo_evaluation_is_episodic_while_training_is_reset_free(tmp_path: Path, monkeypatch) -> None:
+    run, stdout = zoo_train(REPO / "zoo_configs" / "reset_free_pointumaze_morefree.yml", tmp_path, 600, 300)
     evaluations = np.load(run / "evaluations.npz")
     assert list(evaluations["timesteps"]) == [300, 600]
     # the eval env got the same env_wrapper, yet its episodes are T_eval long (no Go/Explore segment ends)
     assert np.all(evaluations["ep_lengths"] == 300)
-    # the training env's Monitor records physical episodes: none ended (no reset in 600 reset-free steps)
-    monitor_rows = (run / "0.monitor.csv").read_text().strip().splitlines()
-    assert len(monitor_rows) == 2  # the two header lines only
+    # training curves: the training Monitor's CSV holds the Go-Explore segments (no physical episode ended in 600
+    # reset-free steps), with the success column the config asks for; SB3 logs them as rollout/*
+    from stable_baselines3.common.monitor import load_results
+
+    rows = load_results(str(run))
+    assert len(rows) >= 2 and rows.l.max() <= 300 and rows.l.sum() <= 600
+    assert set(rows.columns) >= {"r", "l", "t", "is_success"}
+    for key in ("ep_len_mean ", "ep_rew_mean ", "success_rate ", "goal_success_"):  # goal kinds: seed-dependent
+        assert f"|    {key}" in stdout
+    # rl_zoo3 plot_train finds and plots them
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from rl_zoo3.plots.plot_train import plot_train
+
+    for y_axis in ("reward", "success", "length"):
+        argv = ["plot_train", "-a", "sac", "-e", "PointUMazeGoal", "-f", str(tmp_path), "-w", "1", "-y", y_axis]
+        monkeypatch.setattr("sys.argv", argv)
+        monkeypatch.setattr(plt, "show", lambda: None)
+        plot_train()
+        (line,) = plt.gca().get_lines()
+        assert len(line.get_xdata()) == len(rows)
+        plt.close("all")
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("config", CONFIGS, ids=[path.stem for path in CONFIGS])
 def test_every_config_trains_briefly(config: Path, tmp_path: Path) -> None:
-    run = zoo_train(config, tmp_path, steps=1200, eval_freq=600)
+    run, _ = zoo_train(config, tmp_path, steps=1200, eval_freq=600)
     evaluations = np.load(run / "evaluations.npz")
     assert np.all(evaluations["ep_lengths"] == 300)
     assert (run / f"{ENV_ID.replace('/', '-')}.zip").exists()

@@ -458,3 +458,100 @@ def test_training_without_the_callback_warns_and_evaluation_does_not() -> None:
         on_purpose = model()
         on_purpose.get_env().env_method("set_training_mode", False)  # episodic training chosen explicitly
         on_purpose.learn(30)
+
+
+# --- training curves: segments reported as Monitor episodes -----------------------------------------------------------
+def monitored_line_env(tmp_path, hard_reset_every: int = 45, terminal_at: float | None = None) -> gym.Env:
+    """LineGoalEnv -> TimeLimit(10) -> Monitor(CSV) -> ResetFreeWrapper -> GoExploreWrapper, as make_vec_env builds."""
+    from stable_baselines3.common.monitor import Monitor
+
+    env = gym.wrappers.TimeLimit(LineGoalEnv(terminal_at=terminal_at), max_episode_steps=10)
+    env = Monitor(env, str(tmp_path / "0"), info_keywords=("is_success",))
+    env = ResetFreeWrapper(env, hard_reset_every=hard_reset_every, eval_horizon=10)
+    return GoExploreWrapper(env, FixedGoalScheduler(np.array([0.3])), go_steps=6, explore_steps=4)
+
+
+def test_training_segments_are_the_episodes_of_info_and_the_monitor_csv(tmp_path) -> None:
+    from stable_baselines3.common.monitor import load_results
+
+    env = monitored_line_env(tmp_path)
+    env.reset(seed=0)
+    env.set_training_mode(True)
+    env.reset()
+    reported, segment_return, segment_length, reached = [], 0.0, 0, False
+    for _ in range(100):
+        _, reward, terminated, truncated, info = env.step(np.array([0.1], dtype=np.float32))
+        segment_return, segment_length = segment_return + float(reward), segment_length + 1
+        reached = reached or float(reward) > 0  # the commanded goal 0.3 is reached on the way, then left
+        if terminated or truncated:
+            assert info["episode"]["r"] == pytest.approx(segment_return) and info["episode"]["l"] == segment_length
+            assert info["is_success"] is reached and info["goal_kind"] == "fixed"
+            reported.append((segment_return, segment_length, reached))
+            segment_return, segment_length, reached = 0.0, 0, False
+            env.reset()
+        else:
+            assert "episode" not in info and "goal_kind" not in info
+    # Go ends at the goal (3 steps from x ~ 0) then 4 explore steps; hard resets at 45 and 90 cut segments short
+    assert any(length < 7 for _, length, _ in reported) and max(length for _, length, _ in reported) <= 10
+    assert env.get_wrapper_attr("interventions") == 3
+    env.close()
+    rows = load_results(str(tmp_path))
+    # one row per segment, none for the physical episodes (hard resets) that the Monitor below saw end
+    assert [(r, int(n), bool(s)) for r, n, s in zip(rows.r, rows.l, rows.is_success)] == reported
+    assert rows.l.sum() == 100 - segment_length
+
+
+def test_only_the_outermost_mode_wrapper_reports_and_evaluation_gives_the_monitor_back(tmp_path) -> None:
+    from stable_baselines3.common.monitor import load_results
+
+    env = monitored_line_env(tmp_path, hard_reset_every=1000)
+    reset_free = env.env
+    env.reset(seed=0)
+    env.set_training_mode(True)
+    assert env._recording and not reset_free._recording
+    for _ in range(20):
+        _, _, terminated, truncated, info = env.step(np.array([0.0], dtype=np.float32))
+        if terminated or truncated:
+            env.reset()
+    env.set_training_mode(False)  # episodic again: the Monitor writes its own (physical) episodes
+    env.reset()
+    for _ in range(10):
+        _, _, _, truncated, info = env.step(np.array([0.0], dtype=np.float32))
+    assert truncated and info["episode"]["l"] == 10 and "goal_kind" not in info
+    env.close()
+    lengths = list(load_results(str(tmp_path)).l)
+    assert lengths[-1] == 10 and sum(lengths[:-1]) <= 20 and len(lengths) >= 3
+
+
+def test_reset_free_wrapper_alone_reports_its_segments_and_true_terminals(tmp_path) -> None:
+    from stable_baselines3.common.monitor import Monitor, load_results
+
+    env = Monitor(LineGoalEnv(terminal_at=0.5), str(tmp_path / "0"))
+    env = ResetFreeWrapper(env, hard_reset_every=1000, segment_length=3)
+    env.reset(seed=0)
+    env.set_training_mode(True)
+    ends = []
+    for _ in range(7):
+        _, _, terminated, truncated, info = env.step(np.array([0.1], dtype=np.float32))
+        if terminated or truncated:
+            ends.append((terminated, info["episode"]["l"], info["is_success"]))
+            env.reset()
+    env.close()
+    # x ~ 0.3 after 3 steps, the terminal at 0.5 after 2 more, then a new segment of 3 from the physical reset
+    assert ends == [(False, 3, False), (True, 2, False)]
+    assert list(load_results(str(tmp_path)).l) == [3, 2]
+
+
+def test_reset_free_envs_doc_example_runs_and_states_eval_horizon_once() -> None:
+    """docs/reset_free_envs.md's example: GoExploreWrapper reads T_eval from the ResetFreeWrapper below it."""
+    import re
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "reset_free_envs.md").read_text()
+    code = "\n".join(re.findall(r"```python\n(.*?)```", doc, flags=re.S))
+    assert code.count("eval_horizon=") == 1  # stated once, to ResetFreeWrapper
+    namespace: dict[str, Any] = {}
+    exec(compile(code, "reset_free_envs.md", "exec"), namespace)  # noqa: S102 (the doc's own example)
+    env = namespace["env"]
+    assert isinstance(env, GoExploreWrapper) and env.go_steps == env.explore_steps == 25  # T_eval 50 // 2
+    env.close()

@@ -7,13 +7,20 @@ the ``callback`` list of the config, calls ``set_training_mode(True)`` on the *t
 
 Logged every ``log_freq`` calls (``reset_free/`` prefix): ``interventions`` (physical resets, summed over envs),
 ``terminal_interventions``, per goal kind (``forward``, ``back``, ``explore``, ...) the number of commanded goals
-and the fraction reached, and the share of Go/Explore steps.
+and the fraction reached since the start, and the share of Go/Explore steps.
+
+Training curves (``rollout/`` prefix, with SB3's next ``rollout/*`` dump): SB3's own ``ep_rew_mean``,
+``ep_len_mean`` and ``success_rate`` over the last 100 segments, which the wrappers report as episodes
+(:mod:`sb3_gcrl.wrappers.segments`; the Monitor CSV gets one row per segment), and
+``goal_success_<evaluation|initial|exploratory>``, the success rate of the last ``window`` segments that were
+commanded a goal of that kind (:class:`~sb3_gcrl.callbacks.segments.GoalSuccessLog`).
 """
 
 from __future__ import annotations
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_gcrl.callbacks.segments import GoalSuccessLog
 from sb3_gcrl.wrappers.mode import switch_training_envs
 
 
@@ -21,14 +28,16 @@ class ResetFreeCallback(BaseCallback):
     """Switch the training env to training (reset-free) mode; log interventions and commanded-goal statistics.
 
     :param log_freq: log every ``log_freq`` calls of ``on_step`` (i.e. ``log_freq * n_envs`` env steps).
+    :param window: segments per goal kind in ``rollout/goal_success_<kind>``.
     :param verbose: verbosity.
     """
 
-    def __init__(self, log_freq: int = 1000, verbose: int = 0) -> None:
+    def __init__(self, log_freq: int = 1000, window: int = 100, verbose: int = 0) -> None:
         super().__init__(verbose)
         if log_freq < 1:
             raise ValueError(f"log_freq must be >= 1, got {log_freq}")
         self.log_freq = log_freq
+        self.goal_success = GoalSuccessLog(window)
 
     def _on_training_start(self) -> None:
         env = self.training_env
@@ -42,6 +51,8 @@ class ResetFreeCallback(BaseCallback):
             print(f"ResetFreeCallback: reset-free mode on for {env.num_envs} training env(s)")
 
     def _on_step(self) -> bool:
+        # SB3 calls on_step before it reads the infos, so these values join its next rollout/* dump
+        self.goal_success.update(self.locals["infos"], self.locals["dones"], self.logger)
         if self.n_calls % self.log_freq == 0:
             self.log_statistics()
         return True

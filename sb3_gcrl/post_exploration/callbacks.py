@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_gcrl.callbacks.segments import GoalSuccessLog
 from sb3_gcrl.post_exploration.metrics import coverage, visitation_entropy
 from sb3_gcrl.wrappers.mode import switch_training_envs
 
@@ -17,20 +18,27 @@ class PostExplorationCallback(BaseCallback):
     ``log_freq`` calls it records (``post_exploration/`` prefix): ``steps`` (post-exploration steps so far),
     ``goals_reached_rate`` (commanded goals reached per episode), ``goal_space_size`` (visited bins),
     ``visitation_entropy`` (Eq. 6.7 over the bins of the goal space) and ``coverage`` (fraction of those bins
-    visited; the bins cover the box ``goal_low``-``goal_high``, walls included).
+    visited; the bins cover the box ``goal_low``-``goal_high``, walls included). Training curves: the wrapper reports
+    every IMGEP episode as an SB3 episode (``rollout/ep_rew_mean``, ``success_rate``, the Monitor CSV), and this
+    callback records ``rollout/goal_success_<kind>`` (kind of the commanded goal, e.g. ``exploratory`` for novelty
+    goals) over the last ``window`` episodes.
 
     :param log_freq: log every this many calls of ``on_step``.
     :param require_executed_actions: raise when the replay buffer would store the ignored policy actions
         (use :class:`~sb3_gcrl.her.ExecutedActionHerReplayBuffer`).
+    :param window: episodes per goal kind in ``rollout/goal_success_<kind>``.
     :param verbose: 1 prints when training mode is switched on and the statistics at the end of training.
     """
 
-    def __init__(self, log_freq: int = 1000, require_executed_actions: bool = True, verbose: int = 0) -> None:
+    def __init__(
+        self, log_freq: int = 1000, require_executed_actions: bool = True, window: int = 100, verbose: int = 0
+    ) -> None:
         super().__init__(verbose)
         if int(log_freq) < 1:
             raise ValueError(f"log_freq must be >= 1, got {log_freq}")
         self.log_freq = int(log_freq)
         self.require_executed_actions = require_executed_actions
+        self.goal_success = GoalSuccessLog(window)
 
     def _on_training_start(self) -> None:
         env = self.training_env
@@ -53,6 +61,7 @@ class PostExplorationCallback(BaseCallback):
             print(f"PostExplorationCallback: IMGEP training mode on for {env.num_envs} training env(s)")
 
     def _on_step(self) -> bool:
+        self.goal_success.update(self.locals["infos"], self.locals["dones"], self.logger)
         if self.n_calls % self.log_freq == 0:
             self.log_statistics()
         return True

@@ -14,7 +14,10 @@ the goal space of visited bins with counts and the count-based novelty scheduler
 3. the whole episode, post-exploration included, is one HER episode ('future', k = 4).
 
 ``info["is_success"]`` stays True for the rest of the episode once the goal was reached, so SB3's
-``rollout/success_rate`` (read at the episode's last step) is the goal-reaching rate.
+``rollout/success_rate`` (read at the episode's last step) is the goal-reaching rate. These episodes end above SB3's
+``Monitor`` (it sees only the ones that hit the env's time limit), so the wrapper reports each one itself, as
+``info["episode"]`` and a row of the Monitor's CSV (:mod:`sb3_gcrl.wrappers.segments`): ``rollout/ep_rew_mean`` and
+``rl_zoo3 plot_train`` count every episode, the successful ones included.
 
 In episodic mode (the eval env that RL-Zoo builds with the same ``env_wrapper``; ``rl_zoo3 enjoy``) the env's own
 goal is used and nothing is replaced; ``reset(options={"goal": g})`` commands ``g`` instead, which
@@ -133,18 +136,23 @@ class PostExplorationWrapper(GoalCommandWrapper):
         counts = self.goal_space.counts
         return float(counts[self.goal_space.bin_index(goal)]), float(np.median(counts[counts > 0]))
 
-    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
-        if not self.training:
-            if self._requested_goal is None:
-                return super().step(action)
-            obs, _, terminated, truncated, info = self.env.step(action)
-            reward = scalar_reward(self._compute_reward(obs["achieved_goal"], self._goal_obs, info))
-            info["is_success"] = self.is_success(obs["achieved_goal"], self.goal, info)  # type: ignore[arg-type]
-            return self._command(obs), reward, terminated, truncated, info
+    def _evaluation_step(
+        self, action: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
+        if self._requested_goal is None:
+            return super()._evaluation_step(action)
+        obs, _, terminated, truncated, info = self.env.step(action)
+        reward = scalar_reward(self._compute_reward(obs["achieved_goal"], self._goal_obs, info))
+        info["is_success"] = self.is_success(obs["achieved_goal"], self.goal, info)  # type: ignore[arg-type]
+        return self._command(obs), reward, terminated, truncated, info
+
+    def _training_step(
+        self, action: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
         post_exploring = self._post_left > 0
         if post_exploring:
             action = self.action_space.sample()
-        obs, reward, terminated, truncated, info = super().step(action)
+        obs, reward, terminated, truncated, info = super()._training_step(action)
         self._steps += 1
         info[POST_EXPLORATION_KEY] = post_exploring
         if post_exploring:

@@ -145,13 +145,13 @@ class GoExploreWrapper(GoalCommandWrapper):
         self.phase, self._phase_steps, self._obs = "go", 0, obs
         return obs, info
 
-    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
-        if not self.training:
-            return super().step(action)
+    def _training_step(
+        self, action: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
         phase = self.phase
         if phase == "explore":
             action = self._explore_policy(self._obs, self._rng)  # type: ignore[arg-type]
-        obs, reward, terminated, truncated, info = super().step(action)
+        obs, reward, terminated, truncated, info = super()._training_step(action)
         self.phase_steps_total[phase] += 1
         self._phase_steps += 1
         if phase == "explore":

@@ -98,6 +98,7 @@ class GoalCommandWrapper(
         # a mode-switched wrapper below (ResetFreeWrapper) gets the switches passed on and warns instead of this one
         self._mode_below: TrainingModeMixin | None = find_wrapper(env, TrainingModeMixin)
         self._init_training_mode(warns=self._mode_below is None)
+        self._pass_mode_to(self._mode_below)  # this wrapper reports the segments, not the one below
         self.goal: np.ndarray | None = None
         self.goal_kind = "env"
         #: goals commanded / reached (at least once while commanded), per scheduler label
@@ -153,6 +154,7 @@ class GoalCommandWrapper(
             self._rng = np.random.default_rng(seeds[0])
             self._task_goal_rng = np.random.default_rng(seeds[1])
         obs, info = self.env.reset(seed=seed, options=options)
+        self._segments.begin()
         physical = info.get("physical_reset", True)
         if physical:
             if not self.task_goals.declared:
@@ -192,13 +194,29 @@ class GoalCommandWrapper(
         return commanded
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
-        obs, reward, terminated, truncated, info = self.env.step(action)
         if not self.training:
-            if self._mode_check_armed:
-                self._check_mode()
-            if "is_success" not in info:
-                info["is_success"] = self.is_success(obs["achieved_goal"], obs["desired_goal"], info)
-            return obs, reward, terminated, truncated, info
+            return self._evaluation_step(action)
+        obs, reward, terminated, truncated, info = self._training_step(action)
+        if self._recording:  # the outermost mode-switched wrapper reports the segments (Monitor CSV, rollout/*)
+            self._segments.step(reward, terminated or truncated, info, self.goal_kind)  # type: ignore[arg-type]
+        return obs, reward, terminated, truncated, info
+
+    def _evaluation_step(
+        self, action: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
+        """One step in evaluation mode: the env's own goal, reward and success."""
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if self._mode_check_armed:
+            self._check_mode()
+        if "is_success" not in info:
+            info["is_success"] = self.is_success(obs["achieved_goal"], obs["desired_goal"], info)
+        return obs, reward, terminated, truncated, info
+
+    def _training_step(
+        self, action: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
+        """One step in training mode toward the commanded goal (subclasses extend it; :meth:`step` records it)."""
+        obs, reward, terminated, truncated, info = self.env.step(action)
         # hot path (every training step): one compute_reward call, no other numpy work
         achieved = obs["achieved_goal"]
         self.scheduler.observe(achieved)

@@ -13,6 +13,9 @@ Calling ``set_training_mode(False)`` states that episodic training is meant and 
 looks at the Python call stack of the process that steps the env, so it cannot see training through a
 ``SubprocVecEnv`` (the worker process runs no SB3 code): there, rely on the callback (``sb3-gcrl train`` and
 ``sb3-gcrl compare`` refuse configs without it).
+
+In training mode the outermost mode-switched wrapper of a chain reports the segments it shows SB3 as episodes
+(``info["episode"]``, the Monitor CSV; :mod:`sb3_gcrl.wrappers.segments`); wrappers below it pass the mode on only.
 """
 
 from __future__ import annotations
@@ -22,7 +25,10 @@ import warnings
 from typing import Any
 
 import gymnasium as gym
+from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_gcrl.wrappers.segments import SegmentRecorder
 
 
 def stepped_by_sb3_training() -> bool:
@@ -48,7 +54,8 @@ class TrainingModeMixin:
 
     Subclasses call :meth:`_init_training_mode` in ``__init__``, :meth:`_arm_mode_check` at physical resets and
     :meth:`_check_mode` at the first evaluation-mode step after them, and may override
-    :meth:`_on_training_mode` to apply the switch.
+    :meth:`_on_training_mode` to apply the switch. In training mode, when :attr:`_recording` is True (the outermost
+    mode-switched wrapper), they pass every step to :attr:`_segments` and call its ``begin`` at every reset.
     """
 
     #: dotted path of the callback that switches the training env to training mode (named in errors and warnings)
@@ -65,6 +72,16 @@ class TrainingModeMixin:
         self.training = False
         self._mode_chosen = False
         self._mode_check_armed = warns
+        #: True while this wrapper reports the segments SB3 sees (training mode, no mode-switched wrapper above it)
+        self._recording = False
+        self._has_mode_above = False
+        env = self.env  # type: ignore[attr-defined]
+        self._segments = SegmentRecorder(find_wrapper(env, Monitor))
+
+    def _pass_mode_to(self, below: TrainingModeMixin | None) -> None:
+        """Make ``below`` (a mode-switched wrapper under this one) follow this wrapper's mode without reporting."""
+        if below is not None:
+            below._has_mode_above = True
 
     def set_training_mode(self, training: bool) -> None:
         """Switch between training mode (``True``) and evaluation mode (``False``, episodic).
@@ -77,7 +94,14 @@ class TrainingModeMixin:
         self.training = bool(training)
         self._mode_chosen = True
         self._mode_check_armed = False
+        self._recording = self.training and not self._has_mode_above
+        self._segments.take_over_monitor(self._recording)
         self._on_training_mode(self.training)
+
+    def close(self) -> None:
+        """Give the Monitor its CSV back (it closes it), then close the env."""
+        self._segments.close()
+        super().close()  # type: ignore[misc]
 
     def _on_training_mode(self, training: bool) -> None:  # noqa: B027 (optional hook)
         """Apply a mode switch (no-op by default)."""

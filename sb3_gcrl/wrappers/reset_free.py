@@ -122,6 +122,7 @@ class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstruct
         else:
             obs, info = self._last_obs, dict(self._last_info, physical_reset=False)
         self._segment_steps = 0
+        self._segments.begin()
         self._last_obs, self._last_info = obs, info
         return obs, info
 
@@ -147,4 +148,6 @@ class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstruct
         elif self.segment_length is not None and self._segment_steps >= self.segment_length:
             truncated = True
         self._last_obs, self._last_info = obs, info
+        if self._recording:  # no goal wrapper above: this wrapper reports the segments (Monitor CSV, rollout/*)
+            self._segments.step(reward, terminated or truncated, info, None)  # type: ignore[arg-type]
         return obs, reward, terminated, truncated, info
