@@ -372,3 +372,26 @@ def test_learn_stops_at_total_timesteps_whatever_the_train_ratio():
     model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), train_ratio=1000)
     model.learn(50)
     assert model.num_timesteps == 50
+
+
+@pytest.mark.filterwarnings("ignore:The environment is already wrapped")
+def test_subprocess_envs_with_the_agents_hooks_are_refused_and_vec_wrappers_are_seen_through():
+    from stable_baselines3.common.vec_env import SubprocVecEnv, VecMonitor
+
+    env = make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0, wrapper_class=reset_free_env(eval_horizon=20))
+    model = tiny(VecMonitor(env))
+    model.learn(200, callback=ResetFreeCallback())
+    peg, slot = find_agent_hooks(env.envs[0])
+    assert peg is not None and peg.n_planned > 0 and slot is not None and slot.n_agent > 0
+    subprocess = make_vec_env(
+        "GCRL/GrowingTreeGoal-v0",
+        n_envs=1,
+        seed=0,
+        wrapper_class=reset_free_env(eval_horizon=20),
+        vec_env_cls=SubprocVecEnv,
+    )
+    try:
+        with pytest.raises(TypeError, match="DummyVecEnv"):
+            tiny(subprocess).learn(10, callback=ResetFreeCallback())
+    finally:
+        subprocess.close()

@@ -33,7 +33,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.utils import safe_mean
-from stable_baselines3.common.vec_env import DummyVecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
 
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
@@ -233,12 +233,22 @@ class MoReFree(BaseAlgorithm):
         """Find the PEG scheduler / Explore slot of each training env, read alpha and H_G, set up task goals."""
         env = self.env
         assert env is not None
-        direct = isinstance(env, DummyVecEnv)
-        self._hooks = [find_agent_hooks(e) for e in env.envs] if direct else []  # type: ignore[attr-defined]
-        if not direct:
-            hooks_wanted = env.has_attr("scheduler")
-            if hooks_wanted and any(isinstance(s, PEGScheduler) for s in self._schedulers()):
-                raise TypeError("MoReFree plans PEG goals in the training process: use a DummyVecEnv (n_envs=1)")
+        base = env.unwrapped if isinstance(env, VecEnvWrapper) else env
+        direct = isinstance(base, DummyVecEnv)
+        if direct:
+            self._hooks = [find_agent_hooks(e) for e in base.envs]  # type: ignore[attr-defined]
+        else:
+            self._hooks = []
+            peg = env.has_attr("scheduler") and any(isinstance(s, PEGScheduler) for s in self._schedulers())
+            slots = env.has_attr("_explore_policy") and any(
+                isinstance(p, AgentExploreAction) for p in env.get_attr("_explore_policy")
+            )
+            if peg or slots:
+                raise TypeError(
+                    "MoReFree plans PEG goals and chooses pi_E's Explore actions in the training process, which it "
+                    "cannot reach inside subprocess envs: use a DummyVecEnv (make_vec_env(..., "
+                    "vec_env_cls=DummyVecEnv)), or morefree_go_explore(..., exploratory='novelty', explorer='random')"
+                )
         for peg, _ in self._hooks:
             if peg is not None:
                 peg.attach(self)
@@ -248,7 +258,7 @@ class MoReFree(BaseAlgorithm):
         if self.peg_horizon is None:
             self._go_steps = int(env.get_attr("go_steps")[0]) if env.has_attr("go_steps") else None
         if not env.has_attr("sample_task_goals") and self._task_goals is None:
-            source = env.envs[0] if direct else env  # type: ignore[attr-defined]
+            source = base.envs[0] if direct else env  # type: ignore[attr-defined]
             self._task_goals = TaskRelevantGoals(source, self.policy.goal_dim)
 
     def _schedulers(self) -> list[Any]:
