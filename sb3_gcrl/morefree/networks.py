@@ -272,7 +272,10 @@ class WorldModel(nn.Module):
 
 
 class Actor(nn.Module):
-    """tanh-Gaussian policy over latent features (and a goal for pi_G); actions in [-1, 1].
+    """Gaussian policy with a tanh-bounded mean, samples clipped to [-1, 1] (DreamerV2's truncated normal).
+
+    The clip passes gradients straight through, so a saturated mean still gets gradients (a tanh-squashed sample
+    would not); the entropy bonus is the Gaussian's.
 
     :param feat_dim: latent feature size.
     :param goal_dim: goal size (0 for pi_E).
@@ -292,18 +295,19 @@ class Actor(nn.Module):
     def forward(self, feat: th.Tensor, goal: th.Tensor | None = None) -> Normal:
         x = feat if goal is None else th.cat([feat, goal], -1)
         mean, std = self.net(x).chunk(2, -1)
-        std = (1 - self.min_std) * th.sigmoid(std + 2.0) + self.min_std
-        return Normal(mean, std)
+        std = 2 * th.sigmoid(std / 2) + self.min_std
+        return Normal(th.tanh(mean), std)
 
     def act(
         self, feat: th.Tensor, goal: th.Tensor | None = None, deterministic: bool = False
     ) -> tuple[th.Tensor, th.Tensor]:
-        """Action in [-1, 1] (reparameterised) and an entropy estimate (``-log pi(a)`` of the tanh-Gaussian)."""
+        """Action in [-1, 1] (reparameterised, straight-through clip) and the Gaussian's entropy."""
         dist = self(feat, goal)
-        raw = dist.mean if deterministic else dist.rsample()
-        action = th.tanh(raw)
-        log_prob = dist.log_prob(raw) - th.log(1 - action.pow(2) + 1e-6)
-        return action, -log_prob.sum(-1)
+        if deterministic:
+            return dist.mean, dist.entropy().sum(-1)
+        raw = dist.rsample()
+        action = raw + (raw.clamp(-1.0, 1.0) - raw).detach()
+        return action, dist.entropy().sum(-1)
 
 
 class Critic(nn.Module):
@@ -321,6 +325,9 @@ class Critic(nn.Module):
 class DynamicalDistance(nn.Module):
     """Predicted steps between a latent state and a goal, divided by the horizon (LEXA's temporal distance).
 
+    The output is squashed to [0, 1], the range of the targets, so that pi_G cannot exploit extrapolated negative
+    distances far from the trained pairs.
+
     :param feat_dim: latent feature size.
     :param goal_dim: goal size.
     :param hidden: hidden units.
@@ -332,7 +339,7 @@ class DynamicalDistance(nn.Module):
         self.net = mlp(feat_dim + goal_dim, 1, hidden, layers)
 
     def forward(self, feat: th.Tensor, goal: th.Tensor) -> th.Tensor:
-        return self.net(th.cat([feat, goal], -1)).squeeze(-1)
+        return th.sigmoid(self.net(th.cat([feat, goal], -1)).squeeze(-1))
 
     def loss(
         self, feats: th.Tensor, goals: th.Tensor, n_pairs: int, neg_fraction: float, generator: th.Generator | None
