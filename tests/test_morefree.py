@@ -17,7 +17,7 @@ import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
 from sb3_gcrl.morefree import MoReFree, SequenceReplayBuffer, morefree_go_explore
 from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler, find_agent_hooks
-from sb3_gcrl.morefree.networks import DynamicalDistance, WorldModel, lambda_returns
+from sb3_gcrl.morefree.networks import DynamicalDistance, WorldModel, frozen, lambda_returns, symlog
 from sb3_gcrl.wrappers import ResetFreeWrapper
 
 TINY = {
@@ -112,6 +112,36 @@ def test_lambda_returns_match_the_recursion():
     last = 2.0 + gamma * 3.0
     first = 1.0 + gamma * ((1 - lam) * 1.5 + lam * last)
     np.testing.assert_allclose(lambda_returns(rewards, values, gamma, lam).squeeze(-1), [first, last], rtol=1e-6)
+
+
+def test_pi_g_trained_in_imagination_reaches_goals_with_an_exact_distance_reward():
+    """The imagination / lambda-return / dynamics-gradient path of MoReFree.train, with a known reward."""
+    th.manual_seed(0)
+    rng = np.random.default_rng(0)
+    net = {**TINY, "deter": 32, "hidden": 32, "embed_dim": 32, "actor_hidden": 32}
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), policy_kwargs=net, imagination_horizon=8)
+    policy, wm = model.policy, model.policy.world_model
+    for group in (*policy.wm_optimizer.param_groups, *policy.actor_g_optimizer.param_groups):
+        group["lr"] = 3e-3
+    for _ in range(120):  # the model of x' = x + 0.5 a (state [x, x], goal x)
+        loss, *_ = wm.loss(*chain_sequences(rng, 16, 8))
+        model._step(policy.wm_optimizer, loss, wm.parameters())
+    first = last = 0.0
+    for step in range(150):
+        with th.no_grad():
+            _, post, _, _ = wm.loss(*chain_sequences(rng, 64, 2))
+        goals = symlog(th.as_tensor(rng.uniform(-1.5, 1.5, (128, 1)), dtype=th.float32))
+        with frozen(wm):
+            feats, _, entropies = model._imagine(lambda f, g=goals: policy.actor_g.act(f, g), post.detach().flatten())
+            distance = (wm.decode_goal(feats[1:]) - goals).abs().squeeze(-1)
+            actor_loss, returns = model._actor_critic(feats, -distance, entropies, policy.critic_g_target, goals)
+        model._step(policy.actor_g_optimizer, actor_loss, policy.actor_g.parameters())
+        critic_loss = model._critic_loss(policy.critic_g, feats, returns, goals)
+        model._step(policy.critic_g_optimizer, critic_loss, policy.critic_g.parameters())
+        if step == 0:
+            first = distance[-1].mean().item()
+        last = distance[-1].mean().item()
+    assert last < 0.4 * first, (first, last)
 
 
 # ------------------------------------------------------------------------------------------------- distance
