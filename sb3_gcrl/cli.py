@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "compare": "sb3_gcrl.compare.cli:main",
     "list-envs": "sb3_gcrl.cli:list_envs",
     "list-algos": "sb3_gcrl.cli:list_algos",
+    "list-configs": "sb3_gcrl.cli:list_configs",
 }
 
 USAGE = """usage: sb3-gcrl <command> [options]
@@ -35,6 +36,7 @@ commands:
   compare     compare methods x envs x seeds and write curves, plots, a table and a report
   list-envs   print the registered GCRL/ environments with their spaces
   list-algos  print the algorithms `--algo` accepts
+  list-configs  print the zoo configs this package ships (`-conf NAME` takes these names)
 
 `sb3-gcrl <command> --help` shows the options of a command.
 """
@@ -64,19 +66,62 @@ def _option_value(argv: Sequence[str], *flags: str) -> str | None:
     return None
 
 
+def shipped_config(name: str) -> Path | None:
+    """The config this package ships under ``name`` (``"cec"``, ``"cec.yml"``), or None.
+
+    :param name: file name in :data:`ZOO_CONFIGS_DIR`, with or without ``.yml``.
+    :return: its path, if there is such a file.
+    """
+    for candidate in (name, f"{name}.yml"):
+        path = ZOO_CONFIGS_DIR / candidate
+        if Path(candidate).name == candidate and path.is_file():
+            return path
+    return None
+
+
 def _with_default_config(argv: list[str]) -> list[str]:
-    """Point ``-conf`` at ``zoo_configs/<algo>.yml`` for our algorithms when the user gave none."""
+    """Resolve ``-conf``: a shipped config may be named without its path (``-conf reset_free_tabletop_morefree``),
+    and our algorithms default to the shipped ``<algo>.yml`` when no ``-conf`` is given."""
     from sb3_gcrl.algorithms import ALGORITHMS
 
+    for i, arg in enumerate(argv):
+        flag, _, inline = arg.partition("=")
+        if flag not in ("-conf", "--conf-file"):
+            continue
+        value = inline if inline else (argv[i + 1] if i + 1 < len(argv) else None)
+        if value is None or Path(value).is_file() or value.endswith(".py"):
+            return argv  # a file of the user's (or RL-Zoo's own error for a missing value)
+        shipped = shipped_config(value)
+        if shipped is None:
+            raise SystemExit(
+                f"sb3-gcrl: -conf {value}: no such file, and no shipped config of that name; "
+                f"the shipped ones are listed by `sb3-gcrl list-configs` (folder {ZOO_CONFIGS_DIR})"
+            )
+        return [*argv[:i], flag, str(shipped), *argv[i + (1 if inline else 2) :]]
     algo = _option_value(argv, "--algo")
-    if algo not in ALGORITHMS or _option_value(argv, "-conf", "--conf-file") is not None:
+    if algo not in ALGORITHMS:
         return argv
-    config = ZOO_CONFIGS_DIR / f"{algo}.yml"
-    if not config.is_file():
+    config = shipped_config(algo)
+    if config is None:
         raise SystemExit(
-            f"sb3-gcrl: no hyperparameters for --algo {algo}: pass `-conf <file.yml>` (expected a default at {config})"
+            f"sb3-gcrl: no hyperparameters for --algo {algo}: pass `-conf <file.yml>` (expected a default "
+            f"{algo}.yml in {ZOO_CONFIGS_DIR})"
         )
     return [*argv, "-conf", str(config)]
+
+
+def list_configs(argv: list[str]) -> int:
+    """``sb3-gcrl list-configs``: print the shipped zoo configs (names usable as ``-conf NAME``) and their folder.
+
+    :param argv: unused (no options).
+    :return: exit code.
+    """
+    if argv:
+        raise SystemExit(f"sb3-gcrl list-configs takes no arguments, got {argv}")
+    print(f"# {ZOO_CONFIGS_DIR}")
+    for path in sorted(ZOO_CONFIGS_DIR.glob("*.yml")):
+        print(path.stem)
+    return 0
 
 
 def _run_zoo_script(script: Callable[[], None], prog: str, argv: list[str]) -> int:

@@ -141,3 +141,28 @@ def test_sb3_gcrl_train_then_enjoy_our_algorithm(tmp_path: Path) -> None:
         cwd=tmp_path,
     )
     assert result.returncode == 0, result.stderr[-3000:]
+
+
+def test_conf_takes_the_name_of_a_shipped_config(tmp_path, capsys):
+    from sb3_gcrl.cli import _with_default_config, shipped_config
+
+    resolved = _with_default_config(["--algo", "sac", "-conf", "reset_free_pointumaze_morefree", "--env", "E"])
+    assert resolved == [
+        "--algo",
+        "sac",
+        "-conf",
+        str(ZOO_CONFIGS_DIR / "reset_free_pointumaze_morefree.yml"),
+        "--env",
+        "E",
+    ]
+    assert _with_default_config(["--algo", "sac", "--conf-file=cec.yml"])[-1] == str(ZOO_CONFIGS_DIR / "cec.yml")
+    own = tmp_path / "cec.yml"
+    own.write_text("{}\n")
+    assert _with_default_config(["--algo", "cec", "-conf", str(own)])[-1] == str(own)  # a user's file wins
+    assert _with_default_config(["--algo", "cec"])[-2:] == ["-conf", str(ZOO_CONFIGS_DIR / "cec.yml")]
+    assert shipped_config("../pyproject.toml") is None  # names only, no paths out of the folder
+    with pytest.raises(SystemExit, match="list-configs"):
+        _with_default_config(["--algo", "sac", "-conf", "no_such_config"])
+    assert main(["list-configs"]) == 0
+    names = capsys.readouterr().out.split()
+    assert "cec" in names and "reset_free_pointumaze_morefree" in names
