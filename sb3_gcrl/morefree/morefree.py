@@ -73,6 +73,12 @@ class MoReFree(BaseAlgorithm):
     :param target_update_interval: training steps between copies into the slow critics (DreamerV2: 100).
     :param expl_reward_scale: scale of the disagreement reward of pi_E.
     :param distance_neg_fraction: share of negative (cross-trajectory) pairs of the distance loss (LEXA: 0.1).
+    :param distance_on_replay: also train the distance on pairs of the replayed sequences (behaviour data, which
+        covers the directions the current pi_G does not take), besides LEXA's pairs of imagined pi_G trajectories.
+        Without them pi_G exploits the young distance, drives every trajectory one way, and D, trained only on those
+        trajectories, never learns the distances back (see docs/morefree.md).
+    :param distance_warmup: training steps in which the distance, world model and critics learn but pi_G does
+        not, so that pi_G never follows an untrained distance's random slopes into a saturated action.
     :param peg_candidates: candidate goals scored per PEG goal.
     :param peg_horizon: imagined steps of pi_G toward each candidate before V_E scores it (``None``: the Go-phase
         length H_G of the env's Go/Explore wrapper, else ``imagination_horizon``).
@@ -110,6 +116,8 @@ class MoReFree(BaseAlgorithm):
         target_update_interval: int = 100,
         expl_reward_scale: float = 1.0,
         distance_neg_fraction: float = 0.1,
+        distance_on_replay: bool = True,
+        distance_warmup: int = 100,
         peg_candidates: int = 64,
         peg_horizon: int | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -149,6 +157,7 @@ class MoReFree(BaseAlgorithm):
             ("entropy_coef", entropy_coef, entropy_coef >= 0),
             ("target_update_interval", target_update_interval, target_update_interval >= 1),
             ("distance_neg_fraction", distance_neg_fraction, 0 <= distance_neg_fraction < 1),
+            ("distance_warmup", distance_warmup, distance_warmup >= 0),
             ("peg_candidates", peg_candidates, peg_candidates >= 1),
             ("peg_horizon", peg_horizon, peg_horizon is None or peg_horizon >= 1),
         ]
@@ -168,6 +177,10 @@ class MoReFree(BaseAlgorithm):
         self.target_update_interval = int(target_update_interval)
         self.expl_reward_scale = float(expl_reward_scale)
         self.distance_neg_fraction = float(distance_neg_fraction)
+        if not isinstance(distance_on_replay, bool):
+            raise TypeError(f"distance_on_replay must be a bool, got {distance_on_replay!r}")
+        self.distance_on_replay = distance_on_replay
+        self.distance_warmup = int(distance_warmup)
         self.peg_candidates = int(peg_candidates)
         self.peg_horizon = peg_horizon
         self._n_updates = 0
@@ -489,6 +502,53 @@ class MoReFree(BaseAlgorithm):
         prediction = critic(feats[:-1].detach(), expand)
         return (discount * (prediction - returns.detach()).pow(2)).mean()
 
+    def _train_goal_policy(
+        self,
+        start: LatentState,
+        goals: th.Tensor,
+        replay: tuple[th.Tensor, th.Tensor, th.Tensor] | None,
+    ) -> dict[str, th.Tensor]:
+        """pi_G, V_G and the dynamical distance D from one batch of imagination starts (thesis Sec. 3.3.2).
+
+        pi_G is imagined from ``start`` toward ``goals`` with the reward ``-D(s_t, g)``; D is then trained on pairs of
+        those imagined trajectories (LEXA) and, with ``replay``, on pairs of the replayed sequences, in the same unit
+        (``imagination_horizon`` steps = 1). The actor waits ``distance_warmup`` training steps for D to be trained.
+
+        :param start: imagination start states (flat batch, detached).
+        :param goals: symlog goals, one per start.
+        :param replay: (posterior features ``(T, B, F)``, symlog achieved goals ``(T, B, G)``, ``is_first (T, B)``)
+            of the world-model batch, or None.
+        :return: the losses and the mean imagined return (detached tensors).
+        """
+        policy = self.policy
+        wm = policy.world_model
+        with frozen(wm, policy.distance):
+            feats, _, entropies = self._imagine(lambda f: policy.actor_g.act(f, goals), start)
+            rewards = -policy.distance(feats[1:], goals.unsqueeze(0).expand(feats.shape[0] - 1, *goals.shape))
+            actor_loss, returns = self._actor_critic(feats, rewards, entropies, policy.critic_g_target, goals)
+        if self._n_updates >= self.distance_warmup:
+            self._step(policy.actor_g_optimizer, actor_loss, policy.actor_g.parameters())
+        critic_loss = self._critic_loss(policy.critic_g, feats, returns, goals)
+        self._step(policy.critic_g_optimizer, critic_loss, policy.critic_g.parameters())
+        with th.no_grad():
+            achieved = wm.decode_goal(feats.detach())
+        n_pairs = feats.shape[0] * feats.shape[1]
+        distance_kwargs = {"n_pairs": n_pairs, "neg_fraction": self.distance_neg_fraction, "generator": None}
+        horizon = self.imagination_horizon
+        distance_loss = policy.distance.loss(feats.detach(), achieved, horizon=horizon, **distance_kwargs)
+        if replay is not None:
+            replay_feats, replay_goals, is_first = replay
+            distance_loss = distance_loss + policy.distance.loss(
+                replay_feats.detach(), replay_goals, horizon=horizon, is_first=is_first, **distance_kwargs
+            )
+        self._step(policy.distance_optimizer, distance_loss, policy.distance.parameters())
+        return {
+            "actor_g_loss": actor_loss.detach(),
+            "critic_g_loss": critic_loss.detach(),
+            "distance_loss": distance_loss.detach(),
+            "imagined_return_g": returns.detach().mean(),
+        }
+
     def train(self) -> None:
         """One training step (Algorithm 2, lines 10-14): world model, ensemble, pi_G with distance, pi_E."""
         policy = self.policy
@@ -519,23 +579,10 @@ class MoReFree(BaseAlgorithm):
         # pi_G toward task-relevant / replayed goals, rewarded by the learned dynamical distance
         goals_np, _ = self.sample_imagination_goals(n_starts)
         goals = symlog(th.as_tensor(goals_np, device=self.device))
-        with frozen(wm, policy.distance):
-            feats, _, entropies = self._imagine(lambda f: policy.actor_g.act(f, goals), start)
-            rewards = -policy.distance(feats[1:], goals.unsqueeze(0).expand(feats.shape[0] - 1, *goals.shape))
-            actor_g_loss, returns_g = self._actor_critic(feats, rewards, entropies, policy.critic_g_target, goals)
-        self._step(policy.actor_g_optimizer, actor_g_loss, policy.actor_g.parameters())
-        critic_g_loss = self._critic_loss(policy.critic_g, feats, returns_g, goals)
-        self._step(policy.critic_g_optimizer, critic_g_loss, policy.critic_g.parameters())
-        with th.no_grad():
-            achieved = wm.decode_goal(feats.detach())
-        distance_loss = policy.distance.loss(
-            feats.detach(),
-            achieved,
-            n_pairs=feats.shape[0] * feats.shape[1],
-            neg_fraction=self.distance_neg_fraction,
-            generator=None,
-        )
-        self._step(policy.distance_optimizer, distance_loss, policy.distance.parameters())
+        replay = None
+        if self.distance_on_replay:
+            replay = (feat, symlog(states[..., -policy.goal_dim :]), is_first)
+        losses = self._train_goal_policy(start, goals, replay)
 
         # pi_E on the ensemble's disagreement (Plan2Explore)
         with frozen(wm, policy.ensemble):
@@ -557,10 +604,8 @@ class MoReFree(BaseAlgorithm):
             log("train/recon_loss", metrics["recon_loss"])
             log("train/kl", metrics["kl"])
             log("train/ensemble_loss", ensemble_loss.item())
-            log("train/distance_loss", distance_loss.item())
-            log("train/actor_g_loss", actor_g_loss.item())
-            log("train/critic_g_loss", critic_g_loss.item())
-            log("train/imagined_return_g", returns_g.mean().item())
+            for name, value in losses.items():
+                log(f"train/{name}", value.item())
             log("train/actor_e_loss", actor_e_loss.item())
             log("train/critic_e_loss", critic_e_loss.item())
             log("train/imagined_return_e", returns_e.mean().item())

@@ -342,36 +342,54 @@ class DynamicalDistance(nn.Module):
         return th.sigmoid(self.net(th.cat([feat, goal], -1)).squeeze(-1))
 
     def loss(
-        self, feats: th.Tensor, goals: th.Tensor, n_pairs: int, neg_fraction: float, generator: th.Generator | None
+        self,
+        feats: th.Tensor,
+        goals: th.Tensor,
+        n_pairs: int,
+        neg_fraction: float,
+        generator: th.Generator | None,
+        horizon: int | None = None,
+        is_first: th.Tensor | None = None,
     ) -> th.Tensor:
         """Regression on state pairs of trajectories ``feats (T, N, F)`` with achieved goals ``goals (T, N, G)``.
 
-        A pair (i, j), i <= j, of one trajectory has the target (j - i) / (T - 1); a fraction ``neg_fraction``
-        of the pairs takes the goal from another trajectory, with the largest target 1 (LEXA's negatives).
+        A pair (i, j), i <= j, of one trajectory has the target ``min((j - i) / horizon, 1)``; a fraction
+        ``neg_fraction`` of the pairs takes the goal from another trajectory, with the largest target 1 (LEXA's
+        negatives). Pairs whose goal lies after a physical reset of the state's trajectory (``is_first`` at some
+        step in ``(i, j]``) are not used: no number of steps links them.
 
         :param feats: latent features along the trajectories (detached by the caller).
         :param goals: achieved goals along the same trajectories (detached).
         :param n_pairs: pairs sampled.
         :param neg_fraction: share of negative pairs.
         :param generator: torch generator for the pair indices.
-        :return: mean squared error.
+        :param horizon: steps that make distance 1 (``None``: ``T - 1``); one horizon for every source of pairs
+            keeps the distance in one unit.
+        :param is_first: ``(T, N)`` stream starts of replayed sequences (``None``: none, e.g. imagined ones).
+        :return: mean squared error over the usable pairs.
         """
         steps, n_traj = feats.shape[:2]
         device = feats.device
-        horizon = max(steps - 1, 1)
+        horizon = max(steps - 1, 1) if horizon is None else horizon
         i = th.randint(0, steps, (n_pairs,), device=device, generator=generator)
         offset = th.rand(n_pairs, device=device, generator=generator)
         j = i + (offset * (steps - i).to(offset.dtype)).long().clamp(max=steps - 1 - i)
         traj = th.randint(0, n_traj, (n_pairs,), device=device, generator=generator)
         goal_traj = traj.clone()
-        target = (j - i).to(feats.dtype) / horizon
+        target = ((j - i).to(feats.dtype) / horizon).clamp(max=1.0)
+        weight = th.ones_like(target)
+        if is_first is not None:
+            # starts[t, n]: stream starts in steps 0..t; a start in (i, j] separates the two states
+            starts = is_first.to(th.long).cumsum(0)
+            weight = (starts[j, traj] == starts[i, traj]).to(feats.dtype)
         n_neg = int(round(neg_fraction * n_pairs))
         if n_neg > 0 and n_traj > 1:
             shift = th.randint(1, n_traj, (n_neg,), device=device, generator=generator)
             goal_traj[:n_neg] = (traj[:n_neg] + shift) % n_traj
             target[:n_neg] = 1.0
+            weight[:n_neg] = 1.0
         prediction = self(feats[i, traj], goals[j, goal_traj])
-        return F.mse_loss(prediction, target)
+        return (weight * (prediction - target).pow(2)).sum() / weight.sum().clamp(min=1.0)
 
 
 class DisagreementEnsemble(nn.Module):
