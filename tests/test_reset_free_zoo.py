@@ -48,6 +48,31 @@ def test_every_config_states_alpha_and_each_horizon_once(config: Path) -> None:
     assert text.count("hard_reset_every:") <= 1
 
 
+SUITE = ("pointumaze", "fetch_push", "fetch_pick_and_place", "fetch_push_hard", "fetch_pick_and_place_hard", "ant")
+SUITE += ("tabletop", "sawyer_door")
+
+
+@pytest.mark.parametrize("task", SUITE)
+def test_every_task_has_a_smaller_cpu_preset_of_the_same_method(task: str) -> None:
+    """``reset_free_<task>_morefree_cpu.yml``: the thesis-scale MoReFree config, with a smaller SAC updated less.
+
+    The other keys (the method) are equal.
+    """
+    from sb3_gcrl.zoo_config import read_zoo_config
+
+    ((env_id, thesis),) = read_zoo_config(REPO / "zoo_configs" / f"reset_free_{task}_morefree.yml").items()
+    ((cpu_env_id, cpu),) = read_zoo_config(REPO / "zoo_configs" / f"reset_free_{task}_morefree_cpu.yml").items()
+    assert cpu_env_id == env_id
+    smaller = {"policy_kwargs", "batch_size", "train_freq", "n_timesteps", "monitor_kwargs"}
+    assert {key: value for key, value in cpu.items() if key not in smaller} == {
+        key: value for key, value in thesis.items() if key not in smaller
+    }  # same method: wrappers, horizons, alpha, bins, buffer, callback, gamma, learning rate
+    net = eval(cpu["policy_kwargs"])["net_arch"]  # noqa: S307 (RL-Zoo eval()s this key too)
+    assert max(net) <= 128 and len(net) == 2 and sum(net) < sum(eval(thesis["policy_kwargs"])["net_arch"])  # noqa: S307
+    assert cpu["batch_size"] < thesis["batch_size"] and cpu["train_freq"] >= 2 * thesis["train_freq"]
+    assert cpu["gradient_steps"] == 1 and "is_success" in cpu["monitor_kwargs"]
+
+
 def test_zoo_evaluation_is_episodic_while_training_is_reset_free(tmp_path: Path, monkeypatch) -> None:
     run, stdout = zoo_train(REPO / "zoo_configs" / "reset_free_pointumaze_morefree.yml", tmp_path, 600, 300)
     evaluations = np.load(run / "evaluations.npz")

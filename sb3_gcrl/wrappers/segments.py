@@ -5,8 +5,8 @@ episodes: reset-free *segments* (:class:`~sb3_gcrl.wrappers.ResetFreeWrapper`; o
 for :class:`~sb3_gcrl.wrappers.GoExploreWrapper`, thesis Algorithm 1) and IMGEP episodes that end at the goal or after
 post-exploration (:class:`~sb3_gcrl.post_exploration.PostExplorationWrapper`, thesis Ch. 6). SB3's ``Monitor`` sits
 *below* these wrappers (``make_vec_env`` and RL-Zoo put it inside ``env_wrapper``), so it sees only the physical
-episodes: none for ``hard_reset_every`` steps in reset-free mode, only the unsuccessful ones in post-exploration. Its
-CSV stayed empty and SB3 logged no ``rollout/*`` values.
+episodes: none for ``hard_reset_every`` steps in reset-free mode, only the unsuccessful ones in post-exploration. Left
+to it, the CSV would stay empty and SB3 would log no ``rollout/*`` values.
 
 :class:`SegmentRecorder` fixes this in the outermost mode-switched wrapper, in training mode only. At the last step of
 every segment it
@@ -55,7 +55,7 @@ class SegmentRecorder:
         """Start a new segment (called at every ``reset()``)."""
         self._return = 0.0
         self._length = 0
-        self._reached: bool | None = None  # None: the env reports no is_success
+        self._reached = False
 
     def take_over_monitor(self, training: bool) -> None:
         """In training mode, write the Monitor's CSV rows here (segments); in evaluation mode, give it back.
@@ -77,21 +77,21 @@ class SegmentRecorder:
         :param info: the step's info dict (updated in place at the last step).
         :param goal_kind: the commanded goal's kind, None without goal commanding.
         """
-        self._return += float(reward)
+        # hot path (every training step): no numpy, no calls but info.get
+        self._return += reward
         self._length += 1
-        success = info.get("is_success")
-        if success is not None:
-            self._reached = bool(self._reached) or bool(success)
+        if not self._reached and info.get("is_success"):
+            self._reached = True
         if done:
             self._finish(info, goal_kind)
 
     def _finish(self, info: dict[str, Any], goal_kind: str | None) -> None:
-        if self._reached is not None:
+        if "is_success" in info:  # envs that report no success keep reporting none
             info["is_success"] = self._reached
         if goal_kind is not None:
             info[GOAL_KIND_KEY] = goal_kind
         episode: dict[str, Any] = {
-            "r": round(self._return, 6),
+            "r": round(float(self._return), 6),
             "l": self._length,
             "t": round(time.time() - self.t_start, 6),
         }
