@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -101,7 +101,7 @@ PRESETS: dict[str, Preset] = {
     ),
     "ch3": Preset(
         description="Reset-free PointUMaze: episodic oracle vs naive reset-free vs Go-Explore (alpha = 0) vs "
-        "MoReFree (SAC + HER)",
+        "the MoReFree-SAC port",
         methods=config_methods("sac", "reset_free_pointumaze_{name}", CH3_METHODS),
         envs=("GCRL/PointUMazeGoal-v0",),
         seeds=(0, 1, 2),
@@ -121,16 +121,6 @@ PRESETS: dict[str, Preset] = {
         n_eval_episodes=10,
         thesis="Sec. 3.5.3 ablations at 10% of the thesis's 1e6 steps, model-free port",
     ),
-    "ch3-quick": Preset(
-        description="Smoke test of the ch3 preset (one seed, a few hundred steps: no learning to speak of)",
-        methods=config_methods("sac", "reset_free_pointumaze_{name}", ("naive", "morefree")),
-        envs=("GCRL/PointUMazeGoal-v0",),
-        seeds=(0,),
-        n_timesteps=600,
-        eval_freq=300,
-        n_eval_episodes=1,
-        thesis="pipeline check of reproduce_ch3.py",
-    ),
     "ch4": Preset(
         description="CEC vs SAC on the sparse-reward navigation and MountainCar tasks of Ch. 4",
         methods=("cec", "sac"),
@@ -140,16 +130,6 @@ PRESETS: dict[str, Preset] = {
         eval_freq=10_000,
         n_eval_episodes=5,
         thesis="Figs. 4.3-4.4 at the thesis's 1e5 steps and 5 seeds (authors: 5 episodes every 5,000 steps)",
-    ),
-    "ch4-quick": Preset(
-        description="Smoke test of the ch4 preset (one seed, a few hundred steps)",
-        methods=("cec", "sac"),
-        envs=("GCRL/PointUMaze-v0",),
-        seeds=(0,),
-        n_timesteps=400,
-        eval_freq=200,
-        n_eval_episodes=1,
-        thesis="pipeline check of reproduce_ch4.py",
     ),
     "ch5": Preset(
         description="Tabular 2M vs Q-learning vs episodic control on the stochastic WindyGrid",
@@ -162,17 +142,6 @@ PRESETS: dict[str, Preset] = {
         metric="mean_return",
         thesis="Fig. 5.5 (left) at 25% of the authors' 2e5 steps; memory-choice panel as Fig. 5.6's top row",
     ),
-    "ch5-quick": Preset(
-        description="Smoke test of the ch5 preset (one seed, 2,000 steps)",
-        methods=("tabular_2m", "tabular_q", "tabular_ec"),
-        envs=("GCRL/WindyGrid-v0",),
-        seeds=(0,),
-        n_timesteps=2_000,
-        eval_freq=500,
-        n_eval_episodes=2,
-        metric="mean_return",
-        thesis="pipeline check of reproduce_ch5.py windygrid",
-    ),
     "ch5-minatar": Preset(
         description="2M (TwoMemoryDQN) vs DQN vs MFEC on MinAtar Breakout",
         methods=("2m=two_memory_dqn", "dqn=dqn:dqn_minatar", "mfec"),
@@ -184,17 +153,6 @@ PRESETS: dict[str, Preset] = {
         env_kwargs=MINATAR_BREAKOUT_ENV_KWARGS,
         thesis="Fig. 5.6 (Breakout) at 3% of the thesis's 3e6 steps, sticky actions 0.2 as the authors",
     ),
-    "ch5-minatar-quick": Preset(
-        description="Smoke test of the ch5-minatar preset (one seed, 1,500 steps)",
-        methods=("2m=two_memory_dqn", "dqn=dqn:dqn_minatar", "mfec"),
-        envs=("MinAtar/Breakout-v1",),
-        seeds=(0,),
-        n_timesteps=1_500,
-        eval_freq=500,
-        n_eval_episodes=1,
-        env_kwargs=MINATAR_BREAKOUT_ENV_KWARGS,
-        thesis="pipeline check of reproduce_ch5.py minatar",
-    ),
     "ch6": Preset(
         description="Tabular IMGEP on FourRooms: post-exploration off vs on (p_pe = 0.5) vs adaptive (ours)",
         methods=config_methods("imgep", "post_exploration_fourrooms_{name}", CH6_VARIANTS),
@@ -204,7 +162,7 @@ PRESETS: dict[str, Preset] = {
         eval_freq=10_000,
         n_eval_episodes=5,
         thesis="Fig. 6.3-6.4 / Table 6.2 (FourRooms) at half the thesis's 2e5 steps; all-goals success, entropy "
-        "and coverage from the saved models (reproduce_ch6.py)",
+        "and coverage recorded at each evaluation (all_goals.csv)",
     ),
     "ch6-deep": Preset(
         description="Deep IMGEP (DDPG + HER) on FetchReach: post-exploration off vs on vs adaptive (ours)",
@@ -214,20 +172,45 @@ PRESETS: dict[str, Preset] = {
         n_timesteps=10_000,
         eval_freq=2_000,
         n_eval_episodes=5,
-        thesis="Fig. 6.5 (FetchReach) at 20% of the config's 5e4 steps; all-goals success over a goal grid from "
-        "the saved models (reproduce_ch6.py)",
-    ),
-    "ch6-quick": Preset(
-        description="Smoke test of the ch6 preset (one seed, 2,000 steps)",
-        methods=config_methods("imgep", "post_exploration_fourrooms_{name}", CH6_VARIANTS),
-        envs=("GCRL/FourRoomsTabular-v0",),
-        seeds=(0,),
-        n_timesteps=2_000,
-        eval_freq=1_000,
-        n_eval_episodes=2,
-        thesis="pipeline check of reproduce_ch6.py",
+        thesis="Fig. 6.5 (FetchReach) at 20% of the config's 5e4 steps; all-goals success over a goal grid at "
+        "each evaluation (all_goals.csv)",
     ),
 }
+
+
+def smoke_test(of: str, n_timesteps: int, eval_freq: int, **changes: Any) -> Preset:
+    """A one-seed, few-step version of preset ``of`` that checks its pipeline (a ``-quick`` preset).
+
+    :param of: the full preset's name; everything not changed here is taken from it.
+    :param n_timesteps: budget per run.
+    :param eval_freq: env steps between evaluations.
+    :param changes: other fields to change (e.g. fewer methods or envs).
+    :return: the smoke-test preset.
+    """
+    full = PRESETS[of]
+    return replace(
+        full,
+        description=f"Smoke test of the {of} preset (one seed, {n_timesteps:,} steps: no learning to speak of)",
+        seeds=(0,),
+        n_timesteps=n_timesteps,
+        eval_freq=eval_freq,
+        n_eval_episodes=changes.pop("n_eval_episodes", 1),
+        thesis=f"pipeline check of the {of} preset",
+        **changes,
+    )
+
+
+PRESETS.update(
+    {
+        "ch3-quick": smoke_test(
+            "ch3", 600, 300, methods=config_methods("sac", "reset_free_pointumaze_{name}", ("naive", "morefree"))
+        ),
+        "ch4-quick": smoke_test("ch4", 400, 200, envs=("GCRL/PointUMaze-v0",)),
+        "ch5-quick": smoke_test("ch5", 2_000, 500, n_eval_episodes=2),
+        "ch5-minatar-quick": smoke_test("ch5-minatar", 1_500, 500),
+        "ch6-quick": smoke_test("ch6", 2_000, 1_000, n_eval_episodes=2),
+    }
+)
 
 #: preset run when ``sb3-gcrl compare`` gets no arguments at all
 DEFAULT_PRESET = "quick"
