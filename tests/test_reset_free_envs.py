@@ -32,16 +32,16 @@ ENV_IDS = [
     pytest.param(env_id, marks=needs_metaworld) if env_id == "GCRL/SawyerDoor-v0" else env_id
     for env_id in RESET_FREE_ENV_IDS
 ]
-FETCH_IBC_IDS = ["GCRL/ResetFreeFetchPush-v0", "GCRL/ResetFreeFetchPickAndPlace-v0"]
-FETCH_HARD_IDS = ["GCRL/ResetFreeFetchPushHard-v0", "GCRL/ResetFreeFetchPickAndPlaceHard-v0"]
+FETCH_IBC_IDS = ["GCRL/ErgodicFetchPush-v0", "GCRL/ErgodicFetchPickAndPlace-v0"]
+FETCH_HARD_IDS = ["GCRL/FetchPushHard-v0", "GCRL/FetchPickAndPlaceHard-v0"]
 
 # Documented spaces: (observation dim, goal dim, action dim).
 SPACES = {
-    "GCRL/ResetFreeFetchPush-v0": (25, 3, 4),
-    "GCRL/ResetFreeFetchPickAndPlace-v0": (25, 3, 4),
-    "GCRL/ResetFreeFetchPushHard-v0": (25, 3, 4),
-    "GCRL/ResetFreeFetchPickAndPlaceHard-v0": (25, 3, 4),
-    "GCRL/ResetFreeAntArena-v0": (27, 2, 8),
+    "GCRL/ErgodicFetchPush-v0": (25, 3, 4),
+    "GCRL/ErgodicFetchPickAndPlace-v0": (25, 3, 4),
+    "GCRL/FetchPushHard-v0": (25, 3, 4),
+    "GCRL/FetchPickAndPlaceHard-v0": (25, 3, 4),
+    "GCRL/AntArena-v0": (27, 2, 8),
     "GCRL/Tabletop-v0": (6, 4, 3),
     "GCRL/SawyerDoor-v0": (7, 3, 4),
 }
@@ -49,7 +49,7 @@ SPACES = {
 
 THRESHOLDS = {
     **dict.fromkeys(FETCH_IBC_IDS + FETCH_HARD_IDS, fetch_module.DISTANCE_THRESHOLD),
-    "GCRL/ResetFreeAntArena-v0": ant_module.SUCCESS_THRESHOLD,
+    "GCRL/AntArena-v0": ant_module.SUCCESS_THRESHOLD,
     "GCRL/Tabletop-v0": tabletop_module.SUCCESS_THRESHOLD,
     "GCRL/SawyerDoor-v0": door_module.SUCCESS_THRESHOLD,
 }
@@ -85,7 +85,7 @@ def test_registry_matches_task_table():
         assert np.all(goal >= point_maze.goal_low) and np.all(goal <= point_maze.goal_high)
     env.close()
     assert RESET_FREE_TASKS["GCRL/Tabletop-v0"].eval_horizon == tabletop_module.EVAL_HORIZON == 200
-    assert RESET_FREE_TASKS["GCRL/ResetFreeAntArena-v0"].eval_horizon == ant_module.EVAL_HORIZON == 500
+    assert RESET_FREE_TASKS["GCRL/AntArena-v0"].eval_horizon == ant_module.EVAL_HORIZON == 500
     assert RESET_FREE_TASKS["GCRL/SawyerDoor-v0"].eval_horizon == door_module.EVAL_HORIZON == 300
     assert fetch_module.EVAL_HORIZON == 50 and fetch_module.HARD_RESET_EVERY == 100_000
     assert tabletop_module.HARD_RESET_EVERY == ant_module.HARD_RESET_EVERY == door_module.HARD_RESET_EVERY == 200_000
@@ -198,7 +198,7 @@ def test_hard_fetch_goal_regions(envs, env_id):
     starts = _samples(env.sample_initial_goal)
     np.testing.assert_allclose(starts, np.tile([start[0], start[1], h], (len(starts), 1)))  # fixed start
     goals = _samples(env.sample_evaluation_goal)
-    if env_id == "GCRL/ResetFreeFetchPushHard-v0":
+    if env_id == "GCRL/FetchPushHard-v0":
         assert np.all(np.abs(goals[:, :2] - start) <= 0.15) and np.abs(goals[:, :2] - start).max() > 0.14
         np.testing.assert_allclose(goals[:, 2], h)
     else:  # goals only in the air, in a 5 x 5 x 10 cm box
@@ -211,7 +211,7 @@ def test_hard_fetch_goal_regions(envs, env_id):
 
 
 def test_ant_goal_regions_and_reset(envs):
-    env = get_env(envs, "GCRL/ResetFreeAntArena-v0").unwrapped
+    env = get_env(envs, "GCRL/AntArena-v0").unwrapped
     starts = _samples(env.sample_initial_goal)
     assert np.all(np.abs(starts) <= 0.1) and np.abs(starts).max() > 0.09
     goals = _samples(env.sample_evaluation_goal)
@@ -224,7 +224,7 @@ def test_ant_goal_regions_and_reset(envs):
 
 
 def test_ant_arena_is_an_open_square_with_walls():
-    env = ant_module.ResetFreeAntArenaEnv()
+    env = ant_module.AntArenaEnv()
     maze = env.maze
     free = [maze.cell_rowcol_to_xy(np.array([i, j])) for i in (1, 2) for j in (1, 2)]
     np.testing.assert_allclose(np.abs(np.array(free)), 2.0)  # free square [-4, 4]^2
@@ -244,12 +244,12 @@ def test_ant_arena_is_an_open_square_with_walls():
 def test_ant_leaves_no_temporary_xml():
     pattern = os.path.join(tempfile.gettempdir(), "ant_maze*.xml")
     before = set(glob.glob(pattern))
-    env = ant_module.ResetFreeAntArenaEnv()
+    env = ant_module.AntArenaEnv()
     env.close()
     assert set(glob.glob(pattern)) - before == set()
 
 
-def _launch_block(env: fetch_module.ResetFreeFetchEnv, direction: np.ndarray, speed: float = 3.0) -> np.ndarray:
+def _launch_block(env: fetch_module.WalledFetchEnv, direction: np.ndarray, speed: float = 3.0) -> np.ndarray:
     """Give the block a horizontal velocity towards ``direction``; return its path over 1.2 s of zero actions."""
     env.reset(seed=0)
     qvel = env._utils.get_joint_qvel(env.model, env.data, "object0:joint").copy()
@@ -262,7 +262,7 @@ def _launch_block(env: fetch_module.ResetFreeFetchEnv, direction: np.ndarray, sp
 DIRECTIONS = [np.array(d, dtype=float) for d in ((1, 0), (-1, 0), (0, 1), (0, -1))]
 
 
-@pytest.mark.parametrize("cls", [fetch_module.ResetFreeFetchPushEnv, fetch_module.ResetFreeFetchPushHardEnv])
+@pytest.mark.parametrize("cls", [fetch_module.ErgodicFetchPushEnv, fetch_module.FetchPushHardEnv])
 def test_walls_stop_a_launched_block(cls):
     env = cls()
     low, high = np.asarray(env.wall_low), np.asarray(env.wall_high)
@@ -276,7 +276,7 @@ def test_walls_stop_a_launched_block(cls):
     env.close()
 
 
-def _press_block_into_wall(env: fetch_module.ResetFreeFetchEnv, direction: np.ndarray) -> np.ndarray:
+def _press_block_into_wall(env: fetch_module.WalledFetchEnv, direction: np.ndarray) -> np.ndarray:
     """Bring the gripper behind the block, then keep shoving it towards ``direction``; return the block path."""
     obs, _ = env.reset(seed=0)
     path = []
@@ -295,7 +295,7 @@ def _press_block_into_wall(env: fetch_module.ResetFreeFetchEnv, direction: np.nd
     return np.array(path)
 
 
-@pytest.mark.parametrize("cls", [fetch_module.ResetFreeFetchPushEnv, fetch_module.ResetFreeFetchPushHardEnv])
+@pytest.mark.parametrize("cls", [fetch_module.ErgodicFetchPushEnv, fetch_module.FetchPushHardEnv])
 def test_gripper_cannot_squeeze_the_block_through_a_wall(cls):
     """The arm presses the block into each wall. Object-only walls alone would let it through (the arm passes
     them and soft contacts yield: the block ends up off the table); stiff wall contacts plus the position clamp
@@ -325,7 +325,7 @@ def test_same_launch_without_walls_leaves_the_box():
     env.close()
 
 
-def _drive_gripper(env: fetch_module.ResetFreeFetchEnv, direction: np.ndarray, steps: int = 40) -> np.ndarray:
+def _drive_gripper(env: fetch_module.WalledFetchEnv, direction: np.ndarray, steps: int = 40) -> np.ndarray:
     env.reset(seed=0)
     action = np.zeros(4)
     action[:2] = direction
@@ -335,14 +335,14 @@ def _drive_gripper(env: fetch_module.ResetFreeFetchEnv, direction: np.ndarray, s
 
 
 def test_ibc_walls_act_on_the_block_only():
-    env = fetch_module.ResetFreeFetchPushEnv()
+    env = fetch_module.ErgodicFetchPushEnv()
     gripper = _drive_gripper(env, np.array([0.0, 1.0]))
     assert gripper[1] > env.wall_high[1] + 0.05  # the arm passes through the object-only wall
     env.close()
 
 
 def test_hard_walls_limit_the_gripper_and_release_it():
-    env = fetch_module.ResetFreeFetchPushHardEnv()
+    env = fetch_module.FetchPushHardEnv()
     assert env.block_gripper is False
     for direction in DIRECTIONS:
         gripper = _drive_gripper(env, direction)
@@ -357,7 +357,7 @@ def test_hard_walls_limit_the_gripper_and_release_it():
 
 
 def test_pick_and_place_hard_air_goal_is_not_solved_on_the_table():
-    env = fetch_module.ResetFreeFetchPickAndPlaceHardEnv()
+    env = fetch_module.FetchPickAndPlaceHardEnv()
     obs, _ = env.reset(seed=0)
     # The block rests right below the goal: still a failure (goals need >= 10 cm of lift).
     resting = np.array([obs["desired_goal"][0], obs["desired_goal"][1], env.height_offset])
@@ -427,9 +427,9 @@ def test_bad_input_raises_clear_errors():
     with pytest.raises(ValueError, match=r"shape \(3,\)"):
         env.step(np.zeros(2))
     with pytest.raises(ValueError, match="reward_type must be 'sparse' or 'dense'"):
-        fetch_module.ResetFreeFetchPushEnv(reward_type="shaped")
+        fetch_module.ErgodicFetchPushEnv(reward_type="shaped")
     with pytest.raises(ValueError, match="reward_type must be 'sparse' or 'dense'"):
-        ant_module.ResetFreeAntArenaEnv(reward_type="shaped")
+        ant_module.AntArenaEnv(reward_type="shaped")
 
 
 def test_sawyer_door_without_metaworld_names_the_install_command(monkeypatch):
@@ -464,7 +464,7 @@ def test_sawyer_door_start_goal_and_scripted_close():
     env.close()
 
 
-@pytest.mark.parametrize("env_id", ["GCRL/ResetFreeFetchPushHard-v0", "GCRL/ResetFreeAntArena-v0"])
+@pytest.mark.parametrize("env_id", ["GCRL/FetchPushHard-v0", "GCRL/AntArena-v0"])
 def test_pickle_round_trip(envs, env_id):
     env = get_env(envs, env_id).unwrapped
     clone = pickle.loads(pickle.dumps(env))
@@ -526,7 +526,7 @@ def test_tabletop_renders_a_top_view():
 
 def test_pick_and_place_hard_is_solvable_by_a_scripted_grasp():
     """Air goals are reachable inside the limited workspace: approach, open, descend, close, lift to the goal."""
-    env = fetch_module.ResetFreeFetchPickAndPlaceHardEnv()
+    env = fetch_module.FetchPickAndPlaceHardEnv()
     for seed in range(3):
         obs, _ = env.reset(seed=seed)
         phase, info = "approach", {}

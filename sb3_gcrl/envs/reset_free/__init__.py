@@ -12,11 +12,11 @@ here carries the IBC reset-free protocol (evaluate 100 steps: pass ``eval_horizo
 =====================================  ==========  =================  =========================================
 id                                     eval steps  hard reset every   source
 =====================================  ==========  =================  =========================================
-GCRL/ResetFreeFetchPush-v0             50          1e5                IBC ergodic Fetch Push
-GCRL/ResetFreeFetchPickAndPlace-v0     50          1e5                IBC ergodic Fetch Pick&Place
-GCRL/ResetFreeFetchPushHard-v0         50          1e5                thesis Push (hard)
-GCRL/ResetFreeFetchPickAndPlaceHard-v0 50          1e5                thesis Pick&Place (hard)
-GCRL/ResetFreeAntArena-v0              500         2e5                thesis Ant (from PEG's AntMaze)
+GCRL/ErgodicFetchPush-v0             50          1e5                IBC ergodic Fetch Push
+GCRL/ErgodicFetchPickAndPlace-v0     50          1e5                IBC ergodic Fetch Pick&Place
+GCRL/FetchPushHard-v0         50          1e5                thesis Push (hard)
+GCRL/FetchPickAndPlaceHard-v0 50          1e5                thesis Pick&Place (hard)
+GCRL/AntArena-v0              500         2e5                thesis Ant (from PEG's AntMaze)
 GCRL/Tabletop-v0                       200         2e5                EARL Tabletop
 GCRL/SawyerDoor-v0                     300         2e5                EARL Sawyer Door (needs metaworld)
 GCRL/PointUMazeGoal-v0                 100         2e5                IBC PointUMaze (registered elsewhere)
@@ -63,8 +63,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
     task.env_id: task
     for task in (
         ResetFreeTask(
-            "GCRL/ResetFreeFetchPush-v0",
-            f"{_FETCH}:ResetFreeFetchPushEnv",
+            "GCRL/ErgodicFetchPush-v0",
+            f"{_FETCH}:ErgodicFetchPushEnv",
             fetch.EVAL_HORIZON,
             fetch.HARD_RESET_EVERY,
             "IBC ergodic Fetch Push",
@@ -72,8 +72,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             fetch.IBC_PUSH_GOAL_HIGH,
         ),
         ResetFreeTask(
-            "GCRL/ResetFreeFetchPickAndPlace-v0",
-            f"{_FETCH}:ResetFreeFetchPickAndPlaceEnv",
+            "GCRL/ErgodicFetchPickAndPlace-v0",
+            f"{_FETCH}:ErgodicFetchPickAndPlaceEnv",
             fetch.EVAL_HORIZON,
             fetch.HARD_RESET_EVERY,
             "IBC ergodic Fetch Pick&Place",
@@ -81,8 +81,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             fetch.IBC_PICK_AND_PLACE_GOAL_HIGH,
         ),
         ResetFreeTask(
-            "GCRL/ResetFreeFetchPushHard-v0",
-            f"{_FETCH}:ResetFreeFetchPushHardEnv",
+            "GCRL/FetchPushHard-v0",
+            f"{_FETCH}:FetchPushHardEnv",
             fetch.EVAL_HORIZON,
             fetch.HARD_RESET_EVERY,
             "thesis Push (hard)",
@@ -90,8 +90,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             fetch.HARD_GOAL_HIGH,
         ),
         ResetFreeTask(
-            "GCRL/ResetFreeFetchPickAndPlaceHard-v0",
-            f"{_FETCH}:ResetFreeFetchPickAndPlaceHardEnv",
+            "GCRL/FetchPickAndPlaceHard-v0",
+            f"{_FETCH}:FetchPickAndPlaceHardEnv",
             fetch.EVAL_HORIZON,
             fetch.HARD_RESET_EVERY,
             "thesis Pick&Place (hard)",
@@ -99,8 +99,8 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             fetch.HARD_GOAL_HIGH,
         ),
         ResetFreeTask(
-            "GCRL/ResetFreeAntArena-v0",
-            "sb3_gcrl.envs.reset_free.ant:ResetFreeAntArenaEnv",
+            "GCRL/AntArena-v0",
+            "sb3_gcrl.envs.reset_free.ant:AntArenaEnv",
             ant.EVAL_HORIZON,
             ant.HARD_RESET_EVERY,
             "thesis Ant (PEG AntMaze, square arena)",

@@ -53,8 +53,8 @@ START_NOISE = 0.1
 GOAL_REGION = (2.0, 3.0)
 
 
-class ResetFreeAntArenaEnv(AntMazeEnv):
-    """``GCRL/ResetFreeAntArena-v0``: Ant starting at the centre of an open square arena, goals in one corner.
+class AntArenaEnv(AntMazeEnv):
+    """``GCRL/AntArena-v0``: Ant starting at the centre of an open square arena, goals in one corner.
 
     :param render_mode: as Gymnasium's Ant (``"human"``, ``"rgb_array"``, ...).
     :param reward_type: ``"sparse"`` (default, 1 within 0.45) or ``"dense"`` (``exp(-distance)``), as AntMaze.
@@ -94,7 +94,7 @@ class ResetFreeAntArenaEnv(AntMazeEnv):
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         # Replaces MazeEnv's cell-based start/goal sampling with rho_0 / rho_g*; the rest is AntMaze's reset.
         super(MazeEnv, self).reset(seed=seed)  # GoalEnv.reset: seeds self.np_random, checks the spaces
-        goal = commanded_goal(options, self.observation_space["desired_goal"], "ResetFreeAntArena")
+        goal = commanded_goal(options, self.observation_space["desired_goal"], "AntArena")
         self.goal = self.sample_evaluation_goal(self.np_random) if goal is None else goal
         self.reset_pos = self.sample_initial_goal(self.np_random)
         self.update_target_site_pos()

@@ -12,10 +12,10 @@ Keeping the block in: the walls' contacts are stiffer than MuJoCo's defaults (a 
 a wall would otherwise squeeze it through the soft contact - with object-only walls, which the arm passes, in
 a few dozen steps), and behind them a position clamp puts a block centre that is more than 5 mm into a wall
 back on the boundary with its outward velocity removed (a hard limit, as IBC's joint limits; in 4000 steps of
-a scripted arm shoving the block at the walls it fired 3 times in ``ResetFreeFetchPush`` and never in the
+a scripted arm shoving the block at the walls it fired 3 times in ``ErgodicFetchPush`` and never in the
 hard tasks).
 
-``GCRL/ResetFreeFetchPush-v0``, ``GCRL/ResetFreeFetchPickAndPlace-v0`` (IBC's "ergodic" Fetch, thesis: "taken
+``GCRL/ErgodicFetchPush-v0``, ``GCRL/ErgodicFetchPickAndPlace-v0`` (IBC's "ergodic" Fetch, thesis: "taken
 from the IBC paper"):
     Initial block and goal distributions identical to FetchPush/FetchPickAndPlace (block and goal within
     +-15 cm of the gripper's start; Pick&Place goals in the air w.p. 0.5, up to 45 cm). The block is kept on the
@@ -25,7 +25,7 @@ from the IBC paper"):
     limits, which jitter at the limit (thesis Section 3.7.1); contacts with a wall are the cleaner equivalent.
     Push keeps Fetch's blocked gripper, as IBC.
 
-``GCRL/ResetFreeFetchPushHard-v0``, ``GCRL/ResetFreeFetchPickAndPlaceHard-v0`` (the thesis's own variants):
+``GCRL/FetchPushHard-v0``, ``GCRL/FetchPickAndPlaceHard-v0`` (the thesis's own variants):
     Real 15 cm walls (colliding with robot and block) stand on the four table edges, enclosing the whole table
     top (0.5 m x 0.7 m, :data:`HARD_ARENA_LOW`/:data:`HARD_ARENA_HIGH`, about 2.2x IBC's area), and the
     gripper's mocap target is clipped to 3 cm inside that arena and 35 cm above the table (the robot's
@@ -95,7 +95,7 @@ _CLAMP_TOLERANCE = 0.005
 _OBJECT_ONLY_BIT = 2
 
 
-class ResetFreeFetchEnv(MujocoFetchEnv):
+class WalledFetchEnv(MujocoFetchEnv):
     """Fetch block manipulation with walls added to the scene (base class of the four tasks).
 
     Subclasses set the wall geometry and gripper limits through class attributes and the task-relevant goal
@@ -283,7 +283,7 @@ class ResetFreeFetchEnv(MujocoFetchEnv):
         raise NotImplementedError
 
 
-class _IBCFetchEnv(ResetFreeFetchEnv):
+class _IBCFetchEnv(WalledFetchEnv):
     """IBC's ergodic Fetch: Fetch's own start/goal distributions, block held in a 0.4 m object-only box."""
 
     wall_low = (IBC_BOX_CENTER[0] - IBC_BOX_HALF_SIZE, IBC_BOX_CENTER[1] - IBC_BOX_HALF_SIZE)
@@ -307,7 +307,7 @@ class _IBCFetchEnv(ResetFreeFetchEnv):
         return goal
 
 
-class _HardFetchEnv(ResetFreeFetchEnv):
+class _HardFetchEnv(WalledFetchEnv):
     """The thesis's hard Fetch: real walls on the table edges, limited gripper workspace, released gripper."""
 
     wall_low = HARD_ARENA_LOW
@@ -325,8 +325,8 @@ class _HardFetchEnv(ResetFreeFetchEnv):
         return np.array([HARD_OBJECT_START[0], HARD_OBJECT_START[1], self.height_offset])
 
 
-class ResetFreeFetchPushEnv(_IBCFetchEnv, EzPickle):
-    """``GCRL/ResetFreeFetchPush-v0``: IBC's ergodic Fetch Push (blocked gripper, block kept in a 0.4 m box).
+class ErgodicFetchPushEnv(_IBCFetchEnv, EzPickle):
+    """``GCRL/ErgodicFetchPush-v0``: IBC's ergodic Fetch Push (blocked gripper, block kept in a 0.4 m box).
 
     :param reward_type: ``"sparse"`` (thesis) or ``"dense"``, as in gymnasium-robotics' Fetch tasks.
     :param kwargs: forwarded to gymnasium-robotics' ``MujocoFetchEnv`` (e.g. ``render_mode``).
@@ -337,8 +337,8 @@ class ResetFreeFetchPushEnv(_IBCFetchEnv, EzPickle):
         EzPickle.__init__(self, reward_type=reward_type, **kwargs)
 
 
-class ResetFreeFetchPickAndPlaceEnv(_IBCFetchEnv, EzPickle):
-    """``GCRL/ResetFreeFetchPickAndPlace-v0``: IBC's ergodic Fetch Pick&Place (block kept in a 0.4 m box).
+class ErgodicFetchPickAndPlaceEnv(_IBCFetchEnv, EzPickle):
+    """``GCRL/ErgodicFetchPickAndPlace-v0``: IBC's ergodic Fetch Pick&Place (block kept in a 0.4 m box).
 
     :param reward_type: ``"sparse"`` (thesis) or ``"dense"``, as in gymnasium-robotics' Fetch tasks.
     :param kwargs: forwarded to gymnasium-robotics' ``MujocoFetchEnv`` (e.g. ``render_mode``).
@@ -349,8 +349,8 @@ class ResetFreeFetchPickAndPlaceEnv(_IBCFetchEnv, EzPickle):
         EzPickle.__init__(self, reward_type=reward_type, **kwargs)
 
 
-class ResetFreeFetchPushHardEnv(_HardFetchEnv, EzPickle):
-    """``GCRL/ResetFreeFetchPushHard-v0``: Push (hard), goals U(-0.15, 0.15)^2 around the block start.
+class FetchPushHardEnv(_HardFetchEnv, EzPickle):
+    """``GCRL/FetchPushHard-v0``: Push (hard), goals U(-0.15, 0.15)^2 around the block start.
 
     :param reward_type: ``"sparse"`` (thesis) or ``"dense"``, as in gymnasium-robotics' Fetch tasks.
     :param kwargs: forwarded to gymnasium-robotics' ``MujocoFetchEnv`` (e.g. ``render_mode``).
@@ -368,8 +368,8 @@ class ResetFreeFetchPushHardEnv(_HardFetchEnv, EzPickle):
         return np.array([xy[0], xy[1], self.height_offset])
 
 
-class ResetFreeFetchPickAndPlaceHardEnv(_HardFetchEnv, EzPickle):
-    """``GCRL/ResetFreeFetchPickAndPlaceHard-v0``: Pick&Place (hard), goals only in the air above the start.
+class FetchPickAndPlaceHardEnv(_HardFetchEnv, EzPickle):
+    """``GCRL/FetchPickAndPlaceHard-v0``: Pick&Place (hard), goals only in the air above the start.
 
     :param reward_type: ``"sparse"`` (thesis) or ``"dense"``, as in gymnasium-robotics' Fetch tasks.
     :param kwargs: forwarded to gymnasium-robotics' ``MujocoFetchEnv`` (e.g. ``render_mode``).
