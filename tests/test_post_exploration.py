@@ -231,6 +231,7 @@ def test_her_buffer_stores_executed_actions_and_relabels_with_post_exploration_s
         stock.learn(10, callback=PostExplorationCallback())
 
 
+@pytest.mark.slow  # a stock rl_zoo3 subprocess with all-goals evaluations: over a minute on 2 loaded cores
 def test_rl_zoo3_train_with_the_post_exploration_yaml(tmp_path: Path) -> None:
     """Stock `rl_zoo3 train` with our FetchReach config (a few hundred steps)."""
     config = Path(__file__).parents[1] / "zoo_configs" / "post_exploration_fetchreach_ddpg_on.yml"
