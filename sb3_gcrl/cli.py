@@ -5,7 +5,8 @@
 zoo's algorithm table (``rl_zoo3.utils.ALGOS``, the dict that both scripts read), because a package
 imported through ``--gym-packages`` comes too late: the zoo fixes ``--algo`` choices when it builds its
 parser. When ``--algo`` names one of our algorithms and no ``-conf`` is given, the hyperparameters are
-read from this repository's ``zoo_configs/<algo>.yml`` instead of the zoo's own (which has none for them).
+read from the shipped ``zoo_configs/<algo>.yml`` instead of the zoo's own (which has none for them), and
+``-conf`` also takes the name of a shipped config (``sb3-gcrl list-configs``).
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-#: ``zoo_configs/`` of a source checkout (the package is meant to be installed from a clone).
-ZOO_CONFIGS_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
+#: the zoo configs this package ships (package data; a clone also has them as ``zoo_configs/`` at its root)
+ZOO_CONFIGS_DIR = Path(__file__).resolve().parent / "zoo_configs"
 
 #: sub-command -> ``"module:function"`` taking ``argv`` (list of strings) and returning an exit code
 COMMANDS: dict[str, str] = {
