@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -65,7 +66,8 @@ def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
 
 def test_plain_rl_zoo3_train_with_gym_packages(tmp_path: Path) -> None:
     """Stock `rl_zoo3 train` (console command) on one of our envs with a stock algorithm's zoo config."""
-    zoo = Path(sys.executable).with_name("rl_zoo3")
+    beside = Path(sys.executable).with_name("rl_zoo3")  # the console script of this interpreter's install
+    zoo = beside if beside.exists() else Path(shutil.which("rl_zoo3") or beside)
     result = _run(
         [
             str(zoo),

@@ -534,7 +534,8 @@ def test_rgb_array_rendering_so_sb3_accepts_the_env_id(env_id: str) -> None:
     env.reset(seed=0)
     frame = env.render()
     assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
-    env.step(env.action_space.sample())
+    space = env.action_space
+    env.step(space.high if isinstance(space, gym.spaces.Box) else space.sample())  # a full step moves a pixel
     assert not np.array_equal(frame, env.render()) or env_id == "GCRL/WindyGrid-v0"
     with pytest.raises(ValueError, match="render_mode must be None, 'ansi' or 'rgb_array'"):
         gym.make(env_id, render_mode="sketch")
