@@ -321,11 +321,28 @@ def test_predict_filters_the_latent_across_an_episode_with_episode_start():
     model = tiny(env)
     obs = env.reset()
     first, _ = model.predict(obs, episode_start=np.ones(2, bool), deterministic=True)
+    model.policy.predict_burn_in = 1
     memoryless, _ = model.predict(obs, deterministic=True)
-    np.testing.assert_allclose(first, memoryless, atol=1e-6)  # a start is the memoryless latent
+    np.testing.assert_allclose(first, memoryless, atol=1e-6)  # a start is the one-step memoryless latent
     model.predict(obs, episode_start=np.zeros(2, bool), deterministic=True)  # carries the latent on
     mean, _ = evaluate_policy(model, Monitor(gym.make("GCRL/GrowingTreeGoal-v0")), n_eval_episodes=1)
     assert np.isfinite(mean)
+
+
+def test_memoryless_predict_holds_the_observation_for_the_burn_in_steps():
+    env = make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=2, seed=0)
+    model = tiny(env, policy_kwargs={**TINY, "predict_burn_in": 3})
+    policy = model.policy
+    obs = env.reset()
+    memoryless, _ = model.predict(obs, deterministic=True)
+    # the same as an episode that starts at this observation and stays there with zero actions for 3 steps
+    for step in range(3):
+        start = np.full(2, step == 0)
+        policy._eval_action = th.zeros(2, 1)  # zero previous action
+        held, _ = model.predict(obs, episode_start=start, deterministic=True)
+    np.testing.assert_allclose(memoryless, held, atol=1e-6)
+    with pytest.raises(ValueError, match="predict_burn_in"):
+        tiny(env, policy_kwargs={**TINY, "predict_burn_in": 0})
 
 
 def test_invalid_spaces_and_hyperparameters_are_refused():
@@ -335,6 +352,10 @@ def test_invalid_spaces_and_hyperparameters_are_refused():
         MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", train_ratio=0)
     with pytest.raises(ValueError, match="imagination_alpha"):
         MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", imagination_alpha=1.5)
+    with pytest.raises(ValueError, match="distance_warmup"):
+        MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", distance_warmup=-1)
+    with pytest.raises(TypeError, match="distance_on_replay"):
+        MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", distance_on_replay="yes")
     with pytest.raises(ValueError, match="exploratory"):
         morefree_go_explore(ResetFreeWrapper(gym.make("GCRL/GrowingTreeGoal-v0"), eval_horizon=20), exploratory="x")
 

@@ -6,7 +6,8 @@ Every ``train_ratio`` env steps (thesis Table 3.2) one training step runs (Algor
    ``batch_length`` replayed steps; the Plan2Explore ensemble on the same posteriors;
 2. pi_G / V_G in imagination from the posterior states, toward goals drawn w.p. alpha/2 from rho_0, alpha/2 from
    rho_g* and 1 - alpha uniformly from replayed states (Sec. 3.4.2), with the reward -D(s, g) of the dynamical
-   distance network, which is then trained on those imagined trajectories;
+   distance network, which is then trained on those imagined trajectories and on the replayed chunks (pi_G's
+   actor waits ``distance_warmup`` training steps for it);
 3. pi_E / V_E in imagination with the ensemble's disagreement as reward.
 
 Actors learn by backpropagating lambda-returns through the model (DreamerV2's ``dynamics`` gradient for

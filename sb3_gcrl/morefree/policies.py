@@ -5,9 +5,10 @@ agent, world model included), with one optimizer per learner (world model, dista
 critic), saved by the algorithm as ``policy.<name>_optimizer``.
 
 Acting: :meth:`MoReFreePolicy.predict` follows SB3's signature and returns ``state=None``. Without
-``episode_start`` every call is the first step of an episode (the latent is the posterior of the observation from
-the zero state, which a Markov state observation determines); with ``episode_start`` (``evaluate_policy`` passes
-it) the policy filters its latent across calls, restarting where ``episode_start`` is True.
+``episode_start`` every call is memoryless (the latent is the posterior of the observation held for
+``predict_burn_in`` steps from the zero state, which a Markov state observation determines); with
+``episode_start`` (``evaluate_policy`` passes it) the policy filters its latent across calls, restarting where
+``episode_start`` is True.
 """
 
 from __future__ import annotations
@@ -84,6 +85,10 @@ class MoReFreePolicy(BasePolicy):
     :param kl_balance: DreamerV2 KL balancing.
     :param free_nats: DreamerV2 free nats.
     :param grad_clip: gradient-norm clip of every optimizer (DreamerV2: 100).
+    :param predict_burn_in: posterior steps of the memoryless ``predict`` (no ``episode_start``): the observation is
+        filtered this many times with a zero action from the zero state, the latent of an agent that has stayed at
+        that observation. One step leaves the latent at the zero state's posterior, which pi_G rarely sees in
+        imagination (a trained GrowingTree pi_G reached no goal from it; see docs/morefree.md).
     """
 
     def __init__(
@@ -105,9 +110,13 @@ class MoReFreePolicy(BasePolicy):
         kl_balance: float = 0.8,
         free_nats: float = 1.0,
         grad_clip: float = 100.0,
+        predict_burn_in: int = 8,
     ) -> None:
         super().__init__(observation_space, action_space, squash_output=True)
         check_spaces(observation_space, action_space)
+        if predict_burn_in < 1:
+            raise ValueError(f"predict_burn_in must be >= 1 (one posterior step), got {predict_burn_in}")
+        self.predict_burn_in = int(predict_burn_in)
         self.lr_schedule = lr_schedule
         self.actor_lr, self.critic_lr, self.grad_clip = actor_lr, critic_lr, grad_clip
         self.net_kwargs = {
@@ -175,6 +184,7 @@ class MoReFreePolicy(BasePolicy):
             actor_lr=self.actor_lr,
             critic_lr=self.critic_lr,
             grad_clip=self.grad_clip,
+            predict_burn_in=self.predict_burn_in,
             **self.net_kwargs,
         )
         return data
@@ -197,7 +207,7 @@ class MoReFreePolicy(BasePolicy):
         return rssm.posterior(rssm.step_deter(state, prev_action), self.world_model.embed(states), deterministic)
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
-        # memoryless: the latent of this observation from the zero state
+        # memoryless: the latent of this observation held for predict_burn_in steps, from the zero state
         assert isinstance(observation, dict)
         states = th.cat(
             [observation["observation"].float().flatten(1), observation["achieved_goal"].float().flatten(1)], 1
@@ -206,7 +216,9 @@ class MoReFreePolicy(BasePolicy):
         rssm = self.world_model.rssm
         start = rssm.initial(states.shape[0], states.device)
         no_action = th.zeros(states.shape[0], self.action_space.shape[0], device=states.device)
-        post = self.filter(start, no_action, states, deterministic)
+        post = start
+        for _ in range(self.predict_burn_in):
+            post = self.filter(post, no_action, states, deterministic)
         return self.actor_g.act(post.feat, goals, deterministic)[0]
 
     def predict(
