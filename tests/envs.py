@@ -53,3 +53,17 @@ class ChainEnv(gym.Env):
         reward = self.step_reward + (self.goal_reward if at_goal else 0.0)
         truncated = self.horizon is not None and self.t >= self.horizon
         return np.int64(self.state), reward, at_goal and self.terminal_goal, truncated, {"is_success": at_goal}
+
+
+#: the smallest MoReFree networks (world model, actors, critics, ensemble) used by the tests: a few ms per update
+MOREFREE_TINY_NET: dict[str, Any] = {
+    "deter": 16,
+    "stoch": 4,
+    "classes": 4,
+    "hidden": 16,
+    "embed_dim": 16,
+    "model_layers": 1,
+    "actor_hidden": 16,
+    "actor_layers": 1,
+    "ensemble_size": 2,
+}

@@ -20,6 +20,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from envs import MOREFREE_TINY_NET
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import (
     BaseCallback,
@@ -117,17 +118,7 @@ CASES: dict[str, Case] = {
             "train_ratio": 10,
             "imagination_horizon": 3,
             "imagination_starts": 16,
-            "policy_kwargs": {
-                "deter": 16,
-                "stoch": 4,
-                "classes": 4,
-                "hidden": 16,
-                "embed_dim": 16,
-                "model_layers": 1,
-                "actor_hidden": 16,
-                "actor_layers": 1,
-                "ensemble_size": 2,
-            },
+            "policy_kwargs": MOREFREE_TINY_NET,
         },
     ),
 }

@@ -9,6 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from envs import MOREFREE_TINY_NET
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
@@ -20,17 +21,7 @@ from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler, find_agent
 from sb3_gcrl.morefree.networks import DynamicalDistance, WorldModel, frozen, lambda_returns, symlog
 from sb3_gcrl.wrappers import ResetFreeWrapper
 
-TINY = {
-    "deter": 16,
-    "stoch": 4,
-    "classes": 4,
-    "hidden": 16,
-    "embed_dim": 16,
-    "model_layers": 1,
-    "actor_hidden": 16,
-    "actor_layers": 1,
-    "ensemble_size": 2,
-}
+TINY = MOREFREE_TINY_NET
 TINY_ALGO = {
     "learning_starts": 60,
     "batch_size": 4,
