@@ -447,3 +447,22 @@ def test_tensorboard_run_is_named_after_the_class(algorithm, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == [f"{type(model).__name__}_1"]
     model.learn(10, tb_log_name="mine")
     assert (tmp_path / "mine_1").is_dir()
+
+
+@pytest.mark.parametrize("algorithm", ["dqn", "sac"])
+def test_algorithm_and_policy_state_the_same_ec_defaults(algorithm):
+    """The policy keeps its own defaults (stock DQN/SAC build it from a YAML); the algorithm's must agree with them."""
+    import inspect
+
+    from sb3_gcrl.two_memory import TwoMemoryDQNPolicy, TwoMemorySACPolicy
+
+    algo_class, policy_class = {
+        "dqn": (TwoMemoryDQN, TwoMemoryDQNPolicy),
+        "sac": (TwoMemorySAC, TwoMemorySACPolicy),
+    }[algorithm]
+    algo_params = inspect.signature(algo_class.__init__).parameters
+    policy_params = inspect.signature(policy_class.__init__).parameters
+    shared = [name for name in algo_params if name in policy_params and name not in ("self", "kwargs")]
+    assert "ec_n_neighbors" in shared
+    for name in shared:
+        assert algo_params[name].default == policy_params[name].default, name
