@@ -32,7 +32,7 @@ import pandas as pd
 from sb3_gcrl.compare.cli import _hyperparam
 from sb3_gcrl.compare.presets import get_preset, preset_labels, run_preset, select_methods
 
-PRESETS = ("ch3", "ch3-ablations")
+PRESETS = ("ch3", "ch3-ablations", "ch3-world-model")
 ENV_ID = get_preset("ch3").envs[0]
 
 
@@ -48,8 +48,15 @@ def task_goals(env_id: str, n: int = 256, seed: int = 0) -> tuple[np.ndarray, fl
     return np.asarray(goals, dtype=np.float64), float(env.distance_threshold)
 
 
+def first_success(run: pd.DataFrame) -> float:
+    """Env steps of a run's first evaluation with any success (NaN when none succeeded)."""
+    hits = run.loc[run["success_rate"] > 0, "timesteps"]
+    return float(hits.min()) if len(hits) else np.nan
+
+
 def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
-    """One row per finished run: final success, mean success over all evaluations, task-relevant share."""
+    """One row per finished run: final success, mean success over all evaluations, env steps of the first
+    evaluation with a success, task-relevant share."""
     from sb3_gcrl.callbacks.visitation import task_relevant_fraction
     from sb3_gcrl.compare.run import RunSpec
     from sb3_gcrl.compare.storage import VISITED_FILE
@@ -71,6 +78,7 @@ def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
                 "seed": int(seed),
                 "final_success": float(np.mean(success[-final_evals:])),
                 "mean_success": float(np.mean(success)),
+                "first_success_steps": first_success(run),
                 "task_relevant_pct": 100 * share,
             }
         )
@@ -81,22 +89,33 @@ def print_table(table: pd.DataFrame) -> None:
     for method, rows in table.groupby("method", sort=False):
         finals, shares = rows["final_success"], rows["task_relevant_pct"]
         print(
-            f"{method:>11}: final success mean {finals.mean():.2f} median {finals.median():.2f} "
+            f"{method:>20}: final success mean {finals.mean():.2f} median {finals.median():.2f} "
             f"(seeds: {', '.join(f'{f:.2f}' for f in finals)}); mean over all evaluations "
-            f"{rows['mean_success'].mean():.2f}; task-relevant states median {shares.median():.1f}% "
-            f"({', '.join(f'{s:.1f}' for s in shares)})"
+            f"{rows['mean_success'].mean():.2f}; first success at {first_successes(rows['first_success_steps'])} "
+            f"steps; task-relevant states median {shares.median():.1f}% ({', '.join(f'{s:.1f}' for s in shares)})"
         )
+
+
+def first_successes(steps: pd.Series) -> str:
+    """Per-seed env steps of the first success, ``-`` for a seed without one."""
+    return ", ".join("-" if np.isnan(value) else f"{value:,.0f}" for value in steps)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     labels = [label for name in PRESETS for label in preset_labels(name)]
-    defaults = get_preset("ch3")
-    parser.add_argument("--methods", nargs="+", choices=labels, help=f"default: {preset_labels('ch3')}")
-    parser.add_argument("--seeds", nargs="+", type=int, help=f"default: {list(defaults.seeds)}")
-    parser.add_argument("--steps", type=int, help=f"env steps per run (default {defaults.n_timesteps:,})")
-    parser.add_argument("--eval-freq", type=int, help=f"default {defaults.eval_freq:,}")
-    parser.add_argument("--eval-episodes", type=int, help=f"default {defaults.n_eval_episodes}")
+    parser.add_argument(
+        "--preset",
+        choices=PRESETS,
+        default="ch3",
+        help="budget, seeds and default methods (ch3-world-model: the world-model agent vs reset-free PEG vs the "
+        "MoReFree-SAC port); --methods may pick labels of any of these presets",
+    )
+    parser.add_argument("--methods", nargs="+", choices=labels, help="default: the preset's methods")
+    parser.add_argument("--seeds", nargs="+", type=int, help="default: the preset's")
+    parser.add_argument("--steps", type=int, help="env steps per run (default: the preset's)")
+    parser.add_argument("--eval-freq", type=int, help="default: the preset's")
+    parser.add_argument("--eval-episodes", type=int, help="default: the preset's")
     parser.add_argument("--final-evals", type=int, default=2, help="evaluations averaged into the final score")
     parser.add_argument("--workers", type=int, help="parallel runs (default: the number of cores)")
     parser.add_argument("--out", type=Path, default=Path("results/ch3"))
@@ -114,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
 
     failed = False
     if not args.analyse_only:
-        preset = "ch3-quick" if args.quick else "ch3"
+        preset = "ch3-quick" if args.quick else args.preset
         methods = select_methods([preset] if args.quick else PRESETS, args.methods or preset_labels(preset))
         result = run_preset(
             preset,

@@ -254,13 +254,27 @@ def test_alpha_is_read_from_the_env_scheduler():
 
 
 def test_sequence_buffer_chunks_never_cross_the_write_position():
-    buffer = SequenceReplayBuffer(capacity=10, n_envs=1, state_dim=1, action_dim=1)
+    buffer = SequenceReplayBuffer(capacity=10, n_envs=1, state_dim=1, action_dim=1, goal_dim=1)
     for t in range(23):  # wraps twice; rows hold t = 13..22
         buffer.add(0, np.array([t], dtype=np.float32), None if t == 0 else np.zeros(1))
     states, _, is_first = buffer.sample(200, 4, np.random.default_rng(0))
     values = states[..., 0]
     assert (np.diff(values, axis=0) == 1).all() and values.min() >= 13
     assert is_first[0].all() and not is_first[1:].any()
+
+
+def test_sequence_buffer_lists_achieved_goals_in_storage_order_for_visitation_heatmaps():
+    buffer = SequenceReplayBuffer(capacity=10, n_envs=2, state_dim=3, action_dim=1, goal_dim=2)
+    for t in range(8):  # env 0 wraps (5 rows, holds t = 3..7), env 1 holds t = 0..2
+        buffer.add(0, np.array([-1, t, 10 * t], dtype=np.float32), None)
+        if t < 3:
+            buffer.add(1, np.array([-1, 100 + t, 0], dtype=np.float32), None)
+    goals = buffer.achieved_goals()
+    assert goals.shape == (buffer.size(), 2) == (8, 2)
+    np.testing.assert_array_equal(goals[:, 0], [3, 4, 5, 6, 7, 100, 101, 102])
+    np.testing.assert_array_equal(goals[:5, 1], [30, 40, 50, 60, 70])
+    with pytest.raises(ValueError, match="goal_dim"):
+        SequenceReplayBuffer(capacity=10, n_envs=1, state_dim=3, action_dim=1, goal_dim=4)
 
 
 # ------------------------------------------------------------------------------------------------- no env reward

@@ -121,6 +121,22 @@ PRESETS: dict[str, Preset] = {
         n_eval_episodes=10,
         thesis="Sec. 3.5.3 ablations at 10% of the thesis's 1e6 steps, model-free port",
     ),
+    "ch3-world-model": Preset(
+        description="Reset-free PointUMaze: world-model MoReFree vs reset-free PEG (the same agent, alpha = 0) vs "
+        "the MoReFree-SAC port, equal env steps, CPU presets",
+        methods=(
+            "morefree_world_model=morefree:morefree_pointumaze_morefree_cpu",
+            "peg_world_model=morefree:morefree_pointumaze_peg_cpu",
+            "morefree_sac_port=sac:reset_free_pointumaze_morefree",
+        ),
+        envs=("GCRL/PointUMazeGoal-v0",),
+        seeds=(0, 1, 2),
+        n_timesteps=30_000,
+        eval_freq=3_000,
+        n_eval_episodes=10,
+        thesis="Fig. 3.4 (PointUMaze panel: MoReFree >= reset-free PEG, model-based ahead of model-free) at 3% of "
+        "the thesis's 1e6 steps; the world-model agents' CPU presets take about 1 h of one core per 50k steps",
+    ),
     "ch4": Preset(
         description="CEC vs SAC on the sparse-reward navigation and MountainCar tasks of Ch. 4",
         methods=("cec", "sac"),

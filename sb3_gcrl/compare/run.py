@@ -126,14 +126,19 @@ def visited_goals(model: Any, max_points: int = MAX_VISITED_POINTS) -> np.ndarra
     :return: float32 array ``(n, 2)``, or None (no replay buffer, no ``achieved_goal``, not 2-D, empty).
     """
     buffer = getattr(model, "replay_buffer", None)
-    observations = getattr(buffer, "observations", None)
-    if not isinstance(observations, dict) or "achieved_goal" not in observations:
-        return None
-    stored = observations["achieved_goal"]
-    if stored.shape[-1] != 2:
-        return None
-    n_rows = buffer.buffer_size if buffer.full else buffer.pos
-    goals = stored[:n_rows].reshape(-1, 2)
+    if callable(getattr(buffer, "achieved_goals", None)):  # sequence buffers (MoReFree) list their goals
+        goals = buffer.achieved_goals()
+        if goals.shape[-1] != 2:
+            return None
+    else:
+        observations = getattr(buffer, "observations", None)
+        if not isinstance(observations, dict) or "achieved_goal" not in observations:
+            return None
+        stored = observations["achieved_goal"]
+        if stored.shape[-1] != 2:
+            return None
+        n_rows = buffer.buffer_size if buffer.full else buffer.pos
+        goals = stored[:n_rows].reshape(-1, 2)
     if len(goals) == 0:
         return None
     keep = np.unique(np.linspace(0, len(goals) - 1, min(len(goals), max_points)).astype(np.int64))

@@ -19,11 +19,15 @@ class SequenceReplayBuffer:
     :param n_envs: number of envs.
     :param state_dim: size of the flat state vector.
     :param action_dim: action size.
+    :param goal_dim: size of the ``achieved_goal`` part, the last entries of the state vector.
     """
 
-    def __init__(self, capacity: int, n_envs: int, state_dim: int, action_dim: int) -> None:
+    def __init__(self, capacity: int, n_envs: int, state_dim: int, action_dim: int, goal_dim: int) -> None:
         if capacity < n_envs * 2:
             raise ValueError(f"buffer_size must be >= 2 * n_envs, got {capacity} for {n_envs} envs")
+        if not 0 < goal_dim <= state_dim:
+            raise ValueError(f"goal_dim must be in [1, state_dim={state_dim}], got {goal_dim}")
+        self.goal_dim = goal_dim
         self.rows = capacity // n_envs
         self.n_envs = n_envs
         self.states = np.zeros((n_envs, self.rows, state_dim), dtype=np.float32)
@@ -79,6 +83,17 @@ class SequenceReplayBuffer:
         is_first = self.is_first[envs[:, None], index].copy()
         is_first[:, 0] = True
         return states.swapaxes(0, 1), actions.swapaxes(0, 1), is_first.swapaxes(0, 1)
+
+    def achieved_goals(self) -> np.ndarray:
+        """Every stored ``achieved_goal`` in storage order (env by env, oldest first): what training visited.
+
+        :return: array ``(size(), goal_dim)``.
+        """
+        streams = []
+        for env in range(self.n_envs):
+            order = (self.pos[env] + np.arange(self.rows)) % self.rows if self.full[env] else np.arange(self.pos[env])
+            streams.append(self.states[env, order, -self.goal_dim :])
+        return np.concatenate(streams)
 
     def sample_states(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` stored state vectors, uniform over the whole buffer (the replay-state goals of Sec. 3.4.2)."""

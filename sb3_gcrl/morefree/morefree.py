@@ -198,7 +198,9 @@ class MoReFree(BaseAlgorithm):
         )
         self.policy = self.policy.to(self.device)
         action_dim = int(np.prod(self.action_space.shape))
-        self.replay_buffer = SequenceReplayBuffer(self.buffer_size, self.n_envs, self.policy.state_dim, action_dim)
+        self.replay_buffer = SequenceReplayBuffer(
+            self.buffer_size, self.n_envs, self.policy.state_dim, action_dim, goal_dim=self.policy.goal_dim
+        )
         self._latent: LatentState | None = None
         self._prev_action: th.Tensor | None = None
         self._stream_obs: Any = None
