@@ -30,7 +30,10 @@ from sb3_gcrl.envs import (
 from sb3_gcrl.envs.point_maze import FOUR_ROOMS_GOAL_CELL, FOUR_ROOMS_MAP, FOUR_ROOMS_START_CELL
 from sb3_gcrl.envs.windy_grid import START_CELL, encode_cell
 
-GOAL_ENV_IDS = tuple(env_id for env_id in GCRL_ENV_IDS if "Goal-v" in env_id)
+# Safety-Gym's task names PointGoal / CarGoal are episodic Box tasks, not goal-env variants.
+GOAL_ENV_IDS = tuple(
+    env_id for env_id in GCRL_ENV_IDS if "Goal-v" in env_id and env_id not in ("GCRL/PointGoal-v0", "GCRL/CarGoal-v0")
+)
 
 
 def _checked_env(env: gym.Env) -> gym.Env:
@@ -42,7 +45,7 @@ def _checked_env(env: gym.Env) -> gym.Env:
 # Registry and API conformance
 # ---------------------------------------------------------------------------------------------------------------
 def test_ids_are_registered_under_the_namespace() -> None:
-    assert len(GCRL_ENV_IDS) == len(set(GCRL_ENV_IDS)) == 11
+    assert len(GCRL_ENV_IDS) == len(set(GCRL_ENV_IDS)) == 14
     for env_id in GCRL_ENV_IDS + MINATAR_ENV_IDS:
         assert env_id in gym.registry, env_id
     assert all(env_id.startswith("GCRL/") for env_id in GCRL_ENV_IDS)

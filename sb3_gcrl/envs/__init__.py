@@ -22,9 +22,11 @@ from sb3_gcrl.envs.point_maze import (
     FOUR_ROOMS_GOAL_CELL,
     FOUR_ROOMS_MAP,
     FOUR_ROOMS_START_CELL,
+    FOUR_ROOMS_SUBGOAL_CELLS,
     PointMazeGoalTaskEnv,
     PointMazeTaskEnv,
 )
+from sb3_gcrl.envs.safety_nav import CarGoalEnv, PointGoalEnv, SafetyGoalEnv
 from sb3_gcrl.envs.sparse_mountain_car import SparseMountainCarContinuousEnv
 from sb3_gcrl.envs.windy_grid import (
     WindyGridEnv,
@@ -51,6 +53,14 @@ _ENV_SPECS: dict[str, tuple[str, int | None, dict]] = {
     "GCRL/Point4Rooms-v0": ("sb3_gcrl.envs.point_maze:PointMazeTaskEnv", 1000, _FOUR_ROOMS),
     "GCRL/PointUMazeGoal-v0": ("sb3_gcrl.envs.point_maze:PointMazeGoalTaskEnv", 300, {}),
     "GCRL/Point4RoomsGoal-v0": ("sb3_gcrl.envs.point_maze:PointMazeGoalTaskEnv", 600, _FOUR_ROOMS),
+    "GCRL/Point4RoomsSubgoals-v0": (
+        "sb3_gcrl.envs.point_maze:PointMazeTaskEnv",
+        1000,
+        {**_FOUR_ROOMS, "subgoal_cells": FOUR_ROOMS_SUBGOAL_CELLS},
+    ),
+    # Safety-Gym's Goal0 level with the Point / Car robot (1000 steps as Safety-Gym).
+    "GCRL/PointGoal-v0": ("sb3_gcrl.envs.safety_nav:PointGoalEnv", 1000, {}),
+    "GCRL/CarGoal-v0": ("sb3_gcrl.envs.safety_nav:CarGoalEnv", 1000, {}),
     # MiniGrid truncates at its own max_steps (FourRooms 100, LavaCrossingS9N1 324, LavaGapS7 196).
     "GCRL/FourRoomsTabular-v0": (
         "sb3_gcrl.envs.minigrid_tabular:make_tabular_minigrid",
@@ -102,11 +112,14 @@ __all__ = [
     "GCRL_ENV_IDS",
     "MINATAR_ENV_IDS",
     "NAMESPACE",
+    "CarGoalEnv",
     "FixedLayout",
     "GrowingTreeEnv",
     "GrowingTreeGoalEnv",
     "PointMazeGoalTaskEnv",
+    "PointGoalEnv",
     "PointMazeTaskEnv",
+    "SafetyGoalEnv",
     "SparseMountainCarContinuousEnv",
     "TabularMiniGridObservation",
     "WindyGridEnv",

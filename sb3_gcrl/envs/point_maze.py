@@ -7,14 +7,16 @@ steps) and Ch. 6 (post-exploration, Fig. 6.5).
 
 Registered ids (cell size 1, origin at the map centre, success radius 0.45 as in gymnasium-robotics):
 
-============================  ==================  =========  ==========================================
-id                            observation         horizon    episode end
-============================  ==================  =========  ==========================================
-``GCRL/PointUMaze-v0``        Box (4,)            1000       terminates at the goal, reward 1
-``GCRL/Point4Rooms-v0``       Box (4,)            1000       terminates at the goal, reward 1
-``GCRL/PointUMazeGoal-v0``    Dict goal env       300        never terminates; reward 1 while in the goal
-``GCRL/Point4RoomsGoal-v0``   Dict goal env       600        never terminates; reward 1 while in the goal
-============================  ==================  =========  ==========================================
+===============================  ==================  =========  ============================================
+id                               observation         horizon    episode end
+===============================  ==================  =========  ============================================
+``GCRL/PointUMaze-v0``           Box (4,)            1000       terminates at the goal, reward 1
+``GCRL/Point4Rooms-v0``          Box (4,)            1000       terminates at the goal, reward 1
+``GCRL/Point4RoomsSubgoals-v0``  Box (4,)            1000       terminates at the goal (reward 1) or at a
+                                                                sub-goal (reward 0.5)
+``GCRL/PointUMazeGoal-v0``       Dict goal env       300        never terminates; reward 1 while in the goal
+``GCRL/Point4RoomsGoal-v0``      Dict goal env       600        never terminates; reward 1 while in the goal
+===============================  ==================  =========  ============================================
 
 - Observation: PointMaze's ``(x, y, vx, vy)`` (float64). Goal variants: ``Dict(observation (4,),
   achieved_goal (2,) = (x, y), desired_goal (2,))`` with a vectorised ``compute_reward``.
@@ -27,21 +29,30 @@ id                            observation         horizon    episode end
 - Task-relevant goals: ``sample_initial_goal`` draws from the start region (rho_0),
   ``sample_evaluation_goal`` from the goal region (rho_g*); ``reset`` draws from exactly these.
 
-Departures from the thesis: the thesis (CEC) used the ``mujoco_maze`` package (cells of 4 units, a
-point with an orientation, obs reduced to (x, y, orientation), Point4Rooms with 0.5-reward sub-goals); we
-build on gymnasium-robotics' maintained PointMaze instead: cells of 1 unit, a ball without orientation,
-no sub-goals (the 4-dim observation matches the thesis's Table 4.2). Traversing the U / the four rooms
-takes a simple waypoint controller about 160 / 390 steps here (pinned by tests/test_envs.py), so the goal
-variants use 300 (U) / 600 (four rooms) steps instead of IBC's 100-step evaluation, and the episodic ones
-keep the thesis's 1000 steps. The goal variants do not terminate at the goal (as IBC's PointUMaze and
-gymnasium-robotics' default), which keeps HER relabelling consistent; pass ``terminate_at_goal=True`` to
-``gym.make`` to change that.
+Sub-goals (``subgoal_cells``, ``GCRL/Point4RoomsSubgoals-v0``): ``mujoco_maze``'s ``SubGoal4Rooms`` task adds
+two sub-goals worth 0.5 that also end the episode, one in each room next to the start room, in line with the
+start: in its 9x9 map (start at row 7, col 1; goal at row 1, col 7, i.e. (6, -6) cells from the start) they
+lie (0, -6) and (6, 0) cells from the start, at (row 1, col 1) in the top-left room and (row 7, col 7) in the
+bottom-right room. On our 11x11 map (start (9, 1), goal (1, 9)) they are the corresponding corners (1, 1)
+and (9, 9), without noise, reached within the goal's radius (as in ``mujoco_maze``, where goal and sub-goals
+share one radius); ``info["is_success"]`` stays True only at the goal.
+
+Departures from the thesis: the thesis (CEC) used the ``mujoco_maze`` package (cells of 4 units, a point with
+an orientation, obs reduced to (x, y, orientation), a -0.0001 reward per step in its goal tasks); we build on
+gymnasium-robotics' maintained PointMaze instead: cells of 1 unit, a ball without orientation, reward 0 per
+step (the 4-dim observation matches the thesis's Table 4.2). Traversing the U / the four rooms takes a simple
+waypoint controller about 160 / 390 steps here (pinned by tests/test_envs.py), so the goal variants use 300
+(U) / 600 (four rooms) steps instead of IBC's 100-step evaluation, and the episodic ones keep the thesis's
+1000 steps. The goal variants do not terminate at the goal (as IBC's PointUMaze and gymnasium-robotics'
+default), which keeps HER relabelling consistent; pass ``terminate_at_goal=True`` to ``gym.make`` to change
+that.
 """
 
 from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from os import path
 from typing import Any
 
@@ -78,6 +89,8 @@ FOUR_ROOMS_MAP: list[list[int]] = [
 ]
 FOUR_ROOMS_START_CELL = (9, 1)  # bottom-left room
 FOUR_ROOMS_GOAL_CELL = (1, 9)  # top-right room, the far one
+# mujoco_maze SubGoal4Rooms: the far corners of the two rooms next to the start room (reward 0.5, terminal)
+FOUR_ROOMS_SUBGOAL_CELLS: tuple[tuple[int, int], ...] = ((1, 1), (9, 9))
 
 _RESET_OPTIONS = ("reset_cell", "goal_cell", "reset_pos", "goal")
 _MAZE_HEIGHT = 0.4  # as gymnasium-robotics' PointMaze
@@ -96,7 +109,12 @@ class PointMazeTaskEnv(gym.Env):
     :param start_noise: half-width of the uniform noise added to each start coordinate.
     :param goal_noise: half-width of the uniform noise added to each goal coordinate.
     :param distance_threshold: success radius around the goal.
-    :param terminate_at_goal: end the episode on success.
+    :param terminate_at_goal: end the episode on success (and at a sub-goal).
+    :param subgoal_cells: ``(row, col)`` centres of sub-goals (mujoco_maze's ``SubGoal4Rooms``, thesis
+        Sec. 4.5.2's Point4Rooms): within ``distance_threshold`` of one, the step pays ``subgoal_reward`` and
+        ends the episode (with ``terminate_at_goal``); ``info["is_success"]`` stays False there and
+        ``info["subgoal_reached"]`` is True. ``None``: no sub-goals (and no ``subgoal_reached`` key).
+    :param subgoal_reward: reward at a sub-goal (mujoco_maze: 0.5).
     :param render_mode: as PointMaze (``"rgb_array"`` needs ``MUJOCO_GL=egl`` on a headless machine).
     :param kwargs: forwarded to gymnasium-robotics' ``PointEnv`` (e.g. ``width``/``height`` for rendering).
     """
@@ -112,12 +130,21 @@ class PointMazeTaskEnv(gym.Env):
         goal_noise: float = 0.1,
         distance_threshold: float = 0.45,
         terminate_at_goal: bool = True,
+        subgoal_cells: Sequence[tuple[int, int]] | None = None,
+        subgoal_reward: float = 0.5,
         render_mode: str | None = None,
         **kwargs: Any,
     ) -> None:
         maze_map = U_MAZE_MAP if maze_map is None else maze_map
         for name, cell in (("start_cell", start_cell), ("goal_cell", goal_cell)):
             _check_free_cell(maze_map, cell, name)
+        subgoals = [] if subgoal_cells is None else [(int(cell[0]), int(cell[1])) for cell in subgoal_cells]
+        for cell in subgoals:
+            _check_free_cell(maze_map, cell, "subgoal_cells entry")
+            if cell in (tuple(start_cell), tuple(goal_cell)):
+                raise ValueError(f"subgoal_cells entry {cell} is the start or the goal cell; pick another cell.")
+        if not math.isfinite(subgoal_reward):
+            raise ValueError(f"subgoal_reward must be finite, got {subgoal_reward}.")
         for name, value in (("start_noise", start_noise), ("goal_noise", goal_noise)):
             if not 0.0 <= value < 0.5:
                 raise ValueError(f"{name} must lie in [0, 0.5) (half a cell), got {value}.")
@@ -156,6 +183,9 @@ class PointMazeTaskEnv(gym.Env):
         )
         self._start_xy = self.maze.cell_rowcol_to_xy(np.array(self.start_cell))
         self._goal_xy = self.maze.cell_rowcol_to_xy(np.array(self.goal_cell))
+        self.subgoal_cells: tuple[tuple[int, int], ...] | None = None if subgoal_cells is None else tuple(subgoals)
+        self.subgoal_reward = float(subgoal_reward)
+        self.subgoals = np.array([self.maze.cell_rowcol_to_xy(np.array(cell)) for cell in subgoals]).reshape(-1, 2)
         self.goal = self._goal_xy.copy()
         self.reset_pos = self._start_xy.copy()
 
@@ -206,7 +236,10 @@ class PointMazeTaskEnv(gym.Env):
         self.point_env.init_qpos[:2] = self.reset_pos
         point_obs, _ = self.point_env.reset(seed=seed)
         success = self._success(point_obs)
-        return self._observation(point_obs), {"is_success": success, "success": success}
+        info = {"is_success": success, "success": success}
+        if self.subgoal_cells is not None:
+            info["subgoal_reached"] = False
+        return self._observation(point_obs), info
 
     def _success(self, point_obs: np.ndarray) -> bool:
         return bool(goal_distance(point_obs[:2], self.goal) <= self.distance_threshold)
@@ -221,7 +254,15 @@ class PointMazeTaskEnv(gym.Env):
         point_obs, _, _, _, _ = self.point_env.step(action)  # clips the action to [-1, 1]
         success = self._success(point_obs)
         info = {"is_success": success, "success": success}
-        return self._observation(point_obs), float(success), success and self.terminate_at_goal, False, info
+        reward, done = float(success), success
+        if self.subgoal_cells is not None:
+            at_subgoal = not success and bool(
+                np.any(goal_distance(point_obs[:2], self.subgoals) <= self.distance_threshold)
+            )
+            info["subgoal_reached"] = at_subgoal
+            if at_subgoal:
+                reward, done = self.subgoal_reward, True
+        return self._observation(point_obs), reward, done and self.terminate_at_goal, False, info
 
     def render(self) -> Any:
         return self.point_env.render()
@@ -242,6 +283,11 @@ class PointMazeGoalTaskEnv(PointMazeTaskEnv):
     """
 
     def __init__(self, *args: Any, terminate_at_goal: bool = False, **kwargs: Any) -> None:
+        if kwargs.get("subgoal_cells") is not None:
+            raise ValueError(
+                "subgoal_cells is an option of the episodic PointMazeTaskEnv only: the goal env's compute_reward "
+                "(HER relabelling) would not pay the sub-goal rewards. Use PointMazeTaskEnv."
+            )
         super().__init__(*args, terminate_at_goal=terminate_at_goal, **kwargs)
         low, high = self.goal_space.low, self.goal_space.high
         self.observation_space = spaces.Dict(
