@@ -131,10 +131,10 @@ PRESETS: dict[str, Preset] = {
         ),
         envs=("GCRL/PointUMazeGoal-v0",),
         seeds=(0, 1, 2),
-        n_timesteps=30_000,
-        eval_freq=3_000,
+        n_timesteps=20_000,
+        eval_freq=2_000,
         n_eval_episodes=10,
-        thesis="Fig. 3.4 (PointUMaze panel: MoReFree >= reset-free PEG, model-based ahead of model-free) at 3% of "
+        thesis="Fig. 3.4 (PointUMaze panel: MoReFree >= reset-free PEG, model-based ahead of model-free) at 2% of "
         "the thesis's 1e6 steps; the world-model agents' CPU presets take about 1 h of one core per 50k steps",
     ),
     "ch4": Preset(
