@@ -35,9 +35,10 @@ does not name the bin count).
 
 Task: goal zone of radius ``goal_size = 0.3`` (Safety-Gym Goal); reaching it (planar distance from the
 robot body to the goal centre ``<= 0.3``) pays 1, sets ``info["is_success"]`` and terminates. Start: robot
-at (-0.5, -0.5) heading 0 (+x), goal at (0.5, 0.5), each position + U(-0.1, 0.1) per coordinate and the
-heading + U(-0.1, 0.1) rad (our "small randomness"; both points lie inside Safety-Gym's Goal0 placement
-extents [-1, 1]^2 and respect its 0.4 / 0.305 keep-outs). Actions ``Box(-1, 1, (2,))`` are mapped linearly
+at (-0.5, 0) with yaw 0, goal at (0.5, 0), each position + U(-0.1, 0.1) per coordinate and the yaw
++ U(-0.1, 0.1) rad (our "small randomness"). Both points lie inside Safety-Gym's Goal0 placement extents
+[-1, 1]^2 and respect its 0.4 / 0.305 keep-outs; their distance, 1.0, is about the mean robot-goal distance
+of Goal0's random layouts (0.97). Actions ``Box(-1, 1, (2,))`` are mapped linearly
 onto the actuators' control ranges; each env step runs 10 physics steps (Safety-Gym's frame skip, fixed).
 
 Departures from Safety-Gym (docs/envs.md): sparse reward only (Safety-Gym adds a dense distance-progress
@@ -212,8 +213,8 @@ class SafetyGoalEnv(gym.Env):
     def __init__(
         self,
         robot: str = "point",
-        start_xy: tuple[float, float] = (-0.5, -0.5),
-        goal_xy: tuple[float, float] = (0.5, 0.5),
+        start_xy: tuple[float, float] = (-0.5, 0.0),
+        goal_xy: tuple[float, float] = (0.5, 0.0),
         start_noise: float = 0.1,
         goal_noise: float = 0.1,
         heading: float = 0.0,
@@ -334,10 +335,12 @@ class SafetyGoalEnv(gym.Env):
         return self._observation(), {"is_success": success}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
-        action = np.asarray(action, dtype=np.float64).reshape(self.model.nu)
-        if not np.all(np.isfinite(action)):
-            raise ValueError(f"{type(self).__name__} got a non-finite action {action!r}.")
-        self.data.ctrl[:] = self._ctrl_low + (np.clip(action, -1.0, 1.0) + 1.0) * self._ctrl_scale
+        values = [float(value) for value in np.ravel(action)]  # two floats: cheaper than array arithmetic
+        if len(values) != self.model.nu or not all(math.isfinite(value) for value in values):
+            raise ValueError(f"{type(self).__name__} needs {self.model.nu} finite action values, got {action!r}.")
+        ctrl = self.data.ctrl
+        for i, value in enumerate(values):
+            ctrl[i] = self._ctrl_low[i] + (min(max(value, -1.0), 1.0) + 1.0) * self._ctrl_scale[i]
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         mujoco.mj_forward(self.model, self.data)  # sensors of the new state (as Safety-Gym)
         success = self._success()
@@ -345,8 +348,8 @@ class SafetyGoalEnv(gym.Env):
         return self._observation(), float(success), success and self.terminate_at_goal, False, info
 
     def _success(self) -> bool:
-        diff = self.data.xpos[self._robot_body, :2] - self.goal
-        return bool(math.hypot(diff[0], diff[1]) <= self.goal_size)
+        x, y = self.data.xpos[self._robot_body, :2]
+        return math.hypot(x - self.goal[0], y - self.goal[1]) <= self.goal_size
 
     def _observation(self) -> np.ndarray:
         sensordata = self.data.sensordata
