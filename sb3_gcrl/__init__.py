@@ -6,6 +6,7 @@ gymnasium-robotics and MinAtar ones), so ``rl_zoo3 train --gym-packages sb3_gcrl
 
 from sb3_gcrl.callbacks import ResetFreeCallback, VisitationCallback
 from sb3_gcrl.cec import CEC
+from sb3_gcrl.emac import EMAC
 from sb3_gcrl.envs import register_envs
 from sb3_gcrl.her import ExecutedActionHerReplayBuffer, TaskRelevantHerReplayBuffer
 from sb3_gcrl.imgep import TabularIMGEP
@@ -21,6 +22,7 @@ register_envs()
 
 __all__ = [
     "CEC",
+    "EMAC",
     "ExecutedActionHerReplayBuffer",
     "GoExploreWrapper",
     "GoalCommandWrapper",

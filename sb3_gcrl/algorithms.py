@@ -22,6 +22,7 @@ ALGORITHMS["tabular_ec"] = "sb3_gcrl.tabular:TabularEpisodicControl"
 ALGORITHMS["tabular_2m"] = "sb3_gcrl.tabular:TabularTwoMemory"
 ALGORITHMS["imgep"] = "sb3_gcrl.imgep:TabularIMGEP"
 ALGORITHMS["morefree"] = "sb3_gcrl.morefree:MoReFree"
+ALGORITHMS["emac"] = "sb3_gcrl.emac:EMAC"
 
 
 def load_algorithm(name: str) -> type[BaseAlgorithm]:

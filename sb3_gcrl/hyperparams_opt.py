@@ -14,6 +14,7 @@ The ranges are the thesis's tuned values where it gives them:
 - tabular IMGEP, Table 6.2 (learning rate 0.1, tau 0, epsilon 0 / 0.1 / 0.3, p_pe 0.5), widened around the
   table's single values so that a search has something to find;
 - tabular Q / EC: the authors' tabular 2M settings (learning rate 0.01, epsilon 0.1 -> 0.05), widened likewise;
+- EMAC (the Ch. 4 baseline): around the paper's alpha, k and projection dimension;
 - MoReFree (Ch. 3): the train ratios of Table 3.2, learning rate, imagination horizon and entropy around PEG's
   defaults.
 
@@ -127,6 +128,12 @@ SEARCH_SPACES: dict[str, dict[str, Space]] = {
         "epsilon": Choice((0.0, 0.1, 0.3)),
         "tau": Choice((0.0, 0.5, 1.0, 2.0)),
         "post_exploration_rule": Nested("p_pe", Choice((0.25, 0.5, 1.0))),
+    },
+    "emac": {  # around the EMAC paper's values (alpha 0.1, k 2, projection to 4 dims, DDPG's learning rate 1e-3)
+        "alpha": Choice((0.05, 0.1, 0.3)),
+        "n_neighbors": Choice((1, 2, 5)),
+        "projection_dim": Choice((4, 8)),
+        "learning_rate": Choice((1e-3, 3e-4)),
     },
     "morefree": {  # Table 3.2's train ratios (every n env steps one training round), around PEG's defaults
         "train_ratio": Choice((1, 2, 5)),

@@ -102,6 +102,12 @@ CASES: dict[str, Case] = {
             "policy_kwargs": TINY_NET,
         },
     ),
+    "emac": Case(
+        "emac",
+        "Pendulum-v1",
+        "MlpPolicy",
+        {"learning_starts": 50, "buffer_size": 1_000, "batch_size": 16, "train_freq": 4, "policy_kwargs": TINY_NET},
+    ),
     "tabular_q": Case("tabular_q", "FrozenLake-v1", "TabularQPolicy", {"learning_starts": 10}),
     "tabular_ec": Case("tabular_ec", "FrozenLake-v1", "TabularECPolicy"),
     "tabular_2m": Case("tabular_2m", "FrozenLake-v1", "TabularTwoMemoryPolicy", {"p_ec_schedule": 0.5}),
@@ -125,6 +131,12 @@ CASES: dict[str, Case] = {
 #: extra observation spaces (Dict goal observations) on top of one case per algorithm
 EXTRA_CASES: dict[str, Case] = {
     "cec_dict": Case("cec", "GCRL/GrowingTreeGoal-v0", "MultiInputPolicy", {"capacity": 500}),
+    "emac_dict": Case(
+        "emac",
+        "GCRL/GrowingTreeGoal-v0",
+        "MultiInputPolicy",
+        {"learning_starts": 50, "buffer_size": 1_000, "batch_size": 16, "policy_kwargs": TINY_NET},
+    ),
     "two_memory_sac_dict": Case(
         "two_memory_sac",
         "GCRL/GrowingTreeGoal-v0",

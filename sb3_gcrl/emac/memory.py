@@ -1,0 +1,196 @@
+"""EMAC's episodic memory: random-projection keys of (state, action) pairs with their Monte-Carlo returns.
+
+Kuznetsov & Filchenkov (IJCAI 2021), "Memory Module": every step of a finished episode is written as one row, the
+key a fixed Gaussian random projection of the concatenated (flattened observation, action), the value the step's
+discounted Monte-Carlo return. The estimate ``Q_M(s, a)`` of a query is the weighted average of the values of its
+``k`` nearest keys (Euclidean). Rows are never merged or updated; when the memory is full the oldest row is
+overwritten (first in, first out; the authors size the memory to the whole training budget, so they never evict).
+
+The key table and its exact kNN search are the package's :class:`~sb3_gcrl.memory.KNNIndex`, the projection is
+:class:`~sb3_gcrl.memory.KeyEmbedding` (thesis Sec. 4.4, the same random projection as CEC/MFEC), and the eviction
+order is :class:`~sb3_gcrl.memory.RecencyOrder` (rows are touched once, when written, so least recently updated is
+oldest).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, Literal
+
+import numpy as np
+from gymnasium import spaces
+
+from sb3_gcrl.memory.embedding import KeyEmbedding
+from sb3_gcrl.memory.knn import KNNBackend, KNNIndex
+from sb3_gcrl.memory.recency import RecencyOrder
+from sb3_gcrl.memory.validation import check_finite_returns, check_int, check_saved_rows
+
+NeighbourWeighting = Literal["softmin", "uniform"]
+NEIGHBOUR_WEIGHTINGS: tuple[str, ...] = ("softmin", "uniform")
+
+
+def check_neighbour_weighting(value: Any) -> NeighbourWeighting:
+    """Return ``value`` if it names a neighbour weighting, else raise a ``ValueError`` listing the choices.
+
+    :param value: ``"softmin"`` or ``"uniform"``.
+    :return: the weighting.
+    """
+    if value not in NEIGHBOUR_WEIGHTINGS:
+        raise ValueError(f"neighbour_weighting must be one of {NEIGHBOUR_WEIGHTINGS}, got {value!r}")
+    return value
+
+
+class StateActionEmbedding:
+    """(observation, action) -> memory key: the flattened observation (Dict observations: ``observation_keys``
+    concatenated, see :class:`~sb3_gcrl.memory.KeyEmbedding`) concatenated with the flattened action, multiplied by a
+    fixed ``(input_dim, projection_dim)`` matrix with N(0, 1) entries drawn from ``numpy.random.default_rng(seed)``.
+
+    :param observation_space: observation space (Box, Discrete, MultiBinary or a Dict of those).
+    :param action_space: Box action space.
+    :param projection_dim: key dimension after projection (authors: 4); ``None``: no projection.
+    :param seed: seed of the projection matrix.
+    :param observation_keys: Dict observation keys in the key, in order (default: observation + desired_goal).
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Box,
+        projection_dim: int | None = 4,
+        seed: int | None = None,
+        observation_keys: Sequence[str] | None = None,
+    ) -> None:
+        self.observations = KeyEmbedding(observation_space, None, None, observation_keys)
+        self.action_dim = int(np.prod(action_space.shape))
+        joint = spaces.Box(-np.inf, np.inf, (self.observations.input_dim + self.action_dim,), np.float32)
+        self.joint = KeyEmbedding(joint, projection_dim, seed)
+
+    @property
+    def key_dim(self) -> int:
+        """Dimension of the keys."""
+        return self.joint.key_dim
+
+    def __call__(self, observations: np.ndarray | dict[str, np.ndarray], actions: np.ndarray) -> np.ndarray:
+        """Keys ``(n, key_dim)`` float32 of a batch of observations and the actions taken in them.
+
+        :raises ValueError: if the batch sizes differ, or an observation or action is NaN or inf.
+        """
+        features = self.observations.features(observations)
+        actions = np.asarray(actions, dtype=np.float32).reshape(len(actions), -1)
+        if len(actions) != len(features):
+            raise ValueError(f"{len(features)} observations but {len(actions)} actions")
+        return self.joint(np.concatenate([features, actions], axis=1))
+
+    def get_state(self) -> dict[str, np.ndarray]:
+        """The projection matrix (see :meth:`KeyEmbedding.get_state`)."""
+        return self.joint.get_state()
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        """Restore what :meth:`get_state` returned."""
+        self.joint.set_state(state)
+
+
+class EMACMemory:
+    """Rows (key, Monte-Carlo return), first in first out, with a kNN estimate ``Q_M``.
+
+    :param key_dim: key dimension.
+    :param capacity: maximum number of rows (the oldest is overwritten when full).
+    :param n_neighbors: ``k`` of the estimate (authors: 2).
+    :param neighbour_weighting: ``"softmin"``: the ``k`` values weighted by ``softmax(-distance)`` (authors' code);
+        ``"uniform"``: their plain mean.
+    :param knn_backend: see :class:`~sb3_gcrl.memory.KNNIndex`.
+    :param rebuild_threshold: see :class:`~sb3_gcrl.memory.KNNIndex`.
+    """
+
+    def __init__(
+        self,
+        key_dim: int,
+        capacity: int,
+        n_neighbors: int = 2,
+        neighbour_weighting: NeighbourWeighting = "softmin",
+        knn_backend: KNNBackend = "auto",
+        rebuild_threshold: int | None = None,
+    ) -> None:
+        self.key_dim = check_int("key_dim", key_dim)
+        self.capacity = check_int("memory_capacity", capacity)
+        self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
+        self.neighbour_weighting = check_neighbour_weighting(neighbour_weighting)
+        self.index = KNNIndex(self.key_dim, self.capacity, backend=knn_backend, rebuild_threshold=rebuild_threshold)
+        self.values = np.zeros(self.capacity, dtype=np.float64)
+        self.recency = RecencyOrder(self.capacity)
+
+    def __len__(self) -> int:
+        return self.index.size
+
+    def add_episode(self, keys: np.ndarray, returns: np.ndarray) -> int:
+        """Write every step of a finished episode, in time order (one row each).
+
+        :param keys: ``(T, key_dim)`` keys of the episode's (state, action) pairs.
+        :param returns: ``(T,)`` their discounted Monte-Carlo returns.
+        :return: number of rows that overwrote an older row.
+        :raises ValueError: if the lengths differ or a return is NaN or infinite (nothing is written then).
+        """
+        keys = np.ascontiguousarray(keys, dtype=np.float32).reshape(len(keys), self.key_dim)
+        returns = np.asarray(returns, dtype=np.float64).reshape(-1)
+        if len(keys) != len(returns):
+            raise ValueError(f"keys and returns lengths differ: {len(keys)}, {len(returns)}")
+        check_finite_returns(returns)
+        evicted = 0
+        for key, value in zip(keys, returns):
+            if self.index.size < self.capacity:
+                row = self.index.add(key)
+            else:
+                row = self.recency.oldest()
+                self.index.set_key(row, key)
+                evicted += 1
+            self.values[row] = value
+            self.recency.touch(row)
+        return evicted
+
+    def estimate(self, keys: np.ndarray) -> np.ndarray:
+        """``Q_M`` of a batch of keys: the weighted mean value of the ``k`` nearest rows (fewer while the memory
+        holds fewer than ``k`` rows).
+
+        :param keys: ``(n, key_dim)`` float32 keys.
+        :return: ``(n,)`` float64 estimates.
+        :raises RuntimeError: if the memory is empty.
+        """
+        if len(self) == 0:
+            raise RuntimeError("EMACMemory is empty: write an episode (add_episode) before estimating")
+        distances, rows = self.index.search(np.ascontiguousarray(keys, dtype=np.float32), self.n_neighbors)
+        valid = rows >= 0  # only missing when the memory holds fewer than k rows
+        if self.neighbour_weighting == "softmin":
+            logits = np.where(valid, -distances, -np.inf)
+            logits = logits - logits[:, :1]  # the nearest row is always valid: a stable softmax
+            weights = np.exp(logits)
+        else:
+            weights = valid.astype(np.float64)
+        weights /= weights.sum(axis=1, keepdims=True)
+        return (self.values[np.where(valid, rows, 0)] * weights).sum(axis=1)
+
+    def state_dict(self) -> dict[str, Any]:
+        """Used rows only, with their write times (which give the eviction order)."""
+        n = len(self)
+        return {
+            "keys": self.index.keys[:n].copy(),
+            "values": self.values[:n].copy(),
+            "last_update": self.recency.last_update[:n].copy(),
+            "clock": int(self.recency.clock),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore exactly what :meth:`state_dict` returned.
+
+        :raises ValueError: if ``state`` is incomplete, mis-shaped, non-finite or larger than the capacity (the
+            memory is left unchanged then).
+        """
+        keys = check_saved_rows(state, "EMACMemory", self.key_dim, self.capacity, ("values",))
+        n = len(keys)
+        self.index.load_keys(keys)
+        self.values[:n] = np.asarray(state["values"], dtype=np.float64)
+        self.recency.rebuild_from_timestamps(np.asarray(state["last_update"], dtype=np.int64), int(state["clock"]))
+
+    def clear(self) -> None:
+        """Remove every row."""
+        self.index.clear()
+        self.recency.clear()
