@@ -40,7 +40,7 @@ class EMAC(ClassNamedRunsMixin, TD3):
     :func:`~sb3_gcrl.memory.discounted_returns`). While the memory is still empty the critic loss is the plain TD
     loss. The actor is DDPG's (maximise ``Q_1(s, mu(s))``); acting and ``predict`` use the actor only.
 
-    Base algorithm: the paper builds EMAC on DDPG (thesis Sec. 4.2: "EMAC combines values from the EM with 1-step TD
+    Base algorithm: the paper builds EMAC on DDPG (thesis Sec. 4.3: "EMAC combines values from the EM with 1-step TD
     target in DDPG"). SB3's DDPG is TD3 with one critic, no delayed policy update and no target smoothing, so EMAC
     subclasses :class:`~stable_baselines3.TD3` with exactly those defaults (``n_critics=1`` in ``policy_kwargs``,
     ``policy_delay=1``, ``target_noise_clip=0``); setting them back to TD3's gives the memory-augmented TD3.
