@@ -204,7 +204,11 @@ def test_bad_arguments_raise() -> None:
         PointGoalEnv(goal_size=0.0)
     with pytest.raises(ValueError, match="render_mode must be None or 'rgb_array'"):
         PointGoalEnv(render_mode="human")
+    with pytest.raises(ValueError, match=r"goal_xy must be a finite \(x, y\) pair"):
+        PointGoalEnv(goal_xy=(1.0, 2.0, 3.0))
     env = PointGoalEnv()
+    with pytest.raises(ValueError, match=r"reset_pos must be a finite \(x, y\) pair"):
+        env.reset(options={"reset_pos": (np.nan, 0.0)})
     env.reset(seed=0)
     with pytest.raises(ValueError, match="needs 2 finite action values"):
         env.step(np.array([np.nan, 0.0]))

@@ -188,6 +188,13 @@ def pseudo_lidar(ego_xy: np.ndarray, num_bins: int, max_dist: float) -> np.ndarr
     return obs
 
 
+def _xy(value: Any, name: str) -> np.ndarray:
+    xy = np.asarray(value, dtype=np.float64)
+    if xy.shape != (2,) or not np.all(np.isfinite(xy)):
+        raise ValueError(f"{name} must be a finite (x, y) pair, got {value!r}.")
+    return xy.copy()
+
+
 class SafetyGoalEnv(gym.Env):
     """Safety-Gym's Goal0 task (open plane, one goal zone, no hazards) with a sparse, terminating reward.
 
@@ -242,8 +249,8 @@ class SafetyGoalEnv(gym.Env):
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}.")
         self.robot = robot
-        self.start_xy = np.array(start_xy, dtype=np.float64).reshape(2)
-        self.goal_xy = np.array(goal_xy, dtype=np.float64).reshape(2)
+        self.start_xy = _xy(start_xy, "start_xy")
+        self.goal_xy = _xy(goal_xy, "goal_xy")
         self.start_noise = float(start_noise)
         self.goal_noise = float(goal_noise)
         self.heading = float(heading)
@@ -318,9 +325,9 @@ class SafetyGoalEnv(gym.Env):
         start = self.sample_initial_goal(self.np_random)
         heading = self.heading + self.np_random.uniform(-self.heading_noise, self.heading_noise)
         if options.get("goal") is not None:
-            goal = np.asarray(options["goal"], dtype=np.float64).reshape(2)
+            goal = _xy(options["goal"], "goal")
         if options.get("reset_pos") is not None:
-            start = np.asarray(options["reset_pos"], dtype=np.float64).reshape(2)
+            start = _xy(options["reset_pos"], "reset_pos")
         if options.get("heading") is not None:
             heading = float(options["heading"])
         self.goal = goal.copy()
