@@ -1,7 +1,9 @@
-"""Thesis Ch. 4 learning comparison: CEC vs SAC on GrowingTree, PointUMaze, Point4Rooms, sparse MountainCar.
+"""Thesis Ch. 4 learning comparison: CEC vs SAC (vs EMAC) on GrowingTree, the navigation tasks, sparse MountainCar.
 
-The runs are the ``ch4`` comparison preset of ``sb3-gcrl compare`` (``quick`` is its GrowingTree part):
-hyperparameters come from ``zoo_configs/cec.yml`` and ``zoo_configs/sac_ch4.yml`` (what ``sb3-gcrl train`` uses),
+The runs are the ``ch4`` comparison preset of ``sb3-gcrl compare`` (``quick`` is its GrowingTree part), or with
+``--preset ch4-navigation`` Fig. 4.3's three-way comparison (CEC, SAC, EMAC on PointUMaze, Point4Rooms with
+sub-goals, PointGoal, CarGoal): hyperparameters come from ``zoo_configs/cec.yml``, ``zoo_configs/sac_ch4.yml`` and
+``zoo_configs/emac.yml`` (what ``sb3-gcrl train`` uses),
 and every ``--eval-freq`` steps each agent is evaluated greedily for ``--eval-episodes`` episodes on a separate
 env (success: ``info["is_success"]``; all four tasks reward only reaching the goal). This script picks tasks,
 algorithms, budget and seeds, and prints the chapter's table: per task and algorithm the mean (and per-seed
@@ -15,7 +17,9 @@ Example (the budgets of docs/results.md)::
     python scripts/reproduce_ch4.py --tasks PointUMaze Point4Rooms MountainCar --algos cec sac \\
         --seeds 0 1 2 3 4 --budget 100000 --eval-freq 10000 --out results/ch4_100k
 
-Re-running resumes; ``--table-only`` re-reads ``--out``; ``--quick`` runs the ``ch4-quick`` preset.
+    python scripts/reproduce_ch4.py --preset ch4-navigation --seeds 0 1 2 3 4 --out results/ch4_navigation
+
+Re-running resumes; ``--table-only`` re-reads ``--out``; ``--quick`` runs the preset's ``-quick`` version.
 """
 
 from __future__ import annotations
@@ -26,13 +30,18 @@ from pathlib import Path
 
 import pandas as pd
 
-from sb3_gcrl.compare.presets import get_preset, preset_labels, run_preset, select_methods
+from sb3_gcrl.compare.presets import preset_labels, run_preset, select_methods
+
+PRESETS = ("ch4", "ch4-navigation")
 
 #: short task names of the command line
 TASKS = {
     "GrowingTree": "GCRL/GrowingTree-v0",
     "PointUMaze": "GCRL/PointUMaze-v0",
     "Point4Rooms": "GCRL/Point4Rooms-v0",
+    "Point4RoomsSubgoals": "GCRL/Point4RoomsSubgoals-v0",
+    "PointGoal": "GCRL/PointGoal-v0",
+    "CarGoal": "GCRL/CarGoal-v0",
     "MountainCar": "GCRL/SparseMountainCarContinuous-v0",
 }
 
@@ -59,13 +68,14 @@ def print_table(curves: pd.DataFrame) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    defaults = get_preset("ch4")
-    parser.add_argument("--tasks", nargs="+", choices=list(TASKS), help="default: the ch4 preset's three tasks")
-    parser.add_argument("--algos", nargs="+", choices=preset_labels("ch4"), help="default: cec sac")
-    parser.add_argument("--seeds", nargs="+", type=int, help=f"default: {list(defaults.seeds)}")
-    parser.add_argument("--budget", type=int, help=f"env steps per run (default {defaults.n_timesteps:,})")
-    parser.add_argument("--eval-freq", type=int, help=f"default {defaults.eval_freq:,}")
-    parser.add_argument("--eval-episodes", type=int, help=f"default {defaults.n_eval_episodes}")
+    parser.add_argument("--preset", choices=PRESETS, default="ch4", help="ch4: CEC vs SAC; ch4-navigation: Fig. 4.3")
+    parser.add_argument("--tasks", nargs="+", choices=list(TASKS), help="default: the preset's tasks")
+    labels = sorted({label for name in PRESETS for label in preset_labels(name)})
+    parser.add_argument("--algos", nargs="+", choices=labels, help="default: the preset's methods")
+    parser.add_argument("--seeds", nargs="+", type=int, help="default: the preset's")
+    parser.add_argument("--budget", type=int, help="env steps per run (default: the preset's)")
+    parser.add_argument("--eval-freq", type=int, help="default: the preset's")
+    parser.add_argument("--eval-episodes", type=int, help="default: the preset's")
     parser.add_argument("--workers", type=int, help="parallel runs (default: the number of cores)")
     parser.add_argument("--out", type=Path, default=Path("results/ch4"))
     parser.add_argument("--table-only", action="store_true", help="only print the table of the runs in --out")
@@ -73,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     failed = False
     if not args.table_only:
-        preset = "ch4-quick" if args.quick else "ch4"
+        preset = f"{args.preset}-quick" if args.quick else args.preset
         result = run_preset(
             preset,
             args.out,

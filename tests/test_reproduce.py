@@ -178,7 +178,7 @@ def _assert_comparison(folder: Path, n_runs: int) -> pd.DataFrame:
     for name in ("report.md", "curves.png", "summary.csv", "scores.csv", "curves.csv"):
         assert (folder / name).is_file(), name
     curves = pd.read_csv(folder / "curves.csv")
-    assert curves.groupby(["method", "seed"]).ngroups == n_runs
+    assert curves.groupby(["env", "method", "seed"]).ngroups == n_runs
     assert np.isfinite(curves["mean_return"]).all()
     scores = pd.read_csv(folder / "scores.csv")
     assert len(scores) == n_runs and np.isfinite(scores[["final", "auc"]].to_numpy()).all()
@@ -201,6 +201,16 @@ def test_reproduce_ch4_quick(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     curves = _assert_comparison(tmp_path, 2)
     assert np.isfinite(curves["success_rate"]).all()
     assert "| PointUMaze | cec | 1 |" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_reproduce_ch4_navigation_quick(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Fig. 4.3's three-way comparison runs end to end: CEC, SAC and EMAC on PointGoal and CarGoal."""
+    assert load_script("reproduce_ch4").main(["--preset", "ch4-navigation", "--quick", "--out", str(tmp_path)]) == 0
+    curves = _assert_comparison(tmp_path, 6)
+    assert set(curves["method"]) == {"cec", "sac", "emac"}
+    out = capsys.readouterr().out
+    assert "| CarGoal | emac | 1 |" in out and "| PointGoal | cec | 1 |" in out
 
 
 @pytest.mark.slow

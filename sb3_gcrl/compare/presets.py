@@ -147,6 +147,17 @@ PRESETS: dict[str, Preset] = {
         n_eval_episodes=5,
         thesis="Figs. 4.3-4.4 at the thesis's 1e5 steps and 5 seeds (authors: 5 episodes every 5,000 steps)",
     ),
+    "ch4-navigation": Preset(
+        description="CEC vs SAC vs EMAC on the four navigation tasks of Fig. 4.3 (Point4Rooms with its 0.5-reward "
+        "sub-goals; PointGoal and CarGoal rebuilt from Safety-Gym)",
+        methods=("cec", "sac", "emac"),
+        envs=("GCRL/PointUMaze-v0", "GCRL/Point4RoomsSubgoals-v0", "GCRL/PointGoal-v0", "GCRL/CarGoal-v0"),
+        seeds=(0, 1, 2, 3, 4),
+        n_timesteps=100_000,
+        eval_freq=10_000,
+        n_eval_episodes=5,
+        thesis="Fig. 4.3 (CEC ahead of SAC and EMAC on all four tasks) at the thesis's 1e5 steps and 5 seeds",
+    ),
     "ch5": Preset(
         description="Tabular 2M vs Q-learning vs episodic control on the stochastic WindyGrid",
         methods=("tabular_2m", "tabular_q", "tabular_ec"),
@@ -222,6 +233,7 @@ PRESETS.update(
             "ch3", 600, 300, methods=config_methods("sac", "reset_free_pointumaze_{name}", ("naive", "morefree"))
         ),
         "ch4-quick": smoke_test("ch4", 400, 200, envs=("GCRL/PointUMaze-v0",)),
+        "ch4-navigation-quick": smoke_test("ch4-navigation", 400, 200, envs=("GCRL/PointGoal-v0", "GCRL/CarGoal-v0")),
         "ch5-quick": smoke_test("ch5", 2_000, 500, n_eval_episodes=2),
         "ch5-minatar-quick": smoke_test("ch5-minatar", 1_500, 500),
         "ch6-quick": smoke_test("ch6", 2_000, 1_000, n_eval_episodes=2),
