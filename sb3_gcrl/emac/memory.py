@@ -21,9 +21,9 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_gcrl.memory.embedding import KeyEmbedding
-from sb3_gcrl.memory.knn import KNNBackend, KNNIndex
-from sb3_gcrl.memory.recency import RecencyOrder
-from sb3_gcrl.memory.validation import check_finite_returns, check_int, check_saved_rows
+from sb3_gcrl.memory.knn import KNNBackend
+from sb3_gcrl.memory.validation import check_finite_returns
+from sb3_gcrl.memory.value_table import KNNValueTable
 
 NeighbourWeighting = Literal["softmin", "uniform"]
 NEIGHBOUR_WEIGHTINGS: tuple[str, ...] = ("softmin", "uniform")
@@ -90,7 +90,7 @@ class StateActionEmbedding:
         self.joint.set_state(state)
 
 
-class EMACMemory:
+class EMACMemory(KNNValueTable):
     """Rows (key, Monte-Carlo return), first in first out, with a kNN estimate ``Q_M``.
 
     :param key_dim: key dimension.
@@ -102,6 +102,8 @@ class EMACMemory:
     :param rebuild_threshold: see :class:`~sb3_gcrl.memory.KNNIndex`.
     """
 
+    capacity_name = "memory_capacity"
+
     def __init__(
         self,
         key_dim: int,
@@ -111,16 +113,8 @@ class EMACMemory:
         knn_backend: KNNBackend = "auto",
         rebuild_threshold: int | None = None,
     ) -> None:
-        self.key_dim = check_int("key_dim", key_dim)
-        self.capacity = check_int("memory_capacity", capacity)
-        self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
+        super().__init__(key_dim, capacity, n_neighbors, knn_backend, rebuild_threshold)
         self.neighbour_weighting = check_neighbour_weighting(neighbour_weighting)
-        self.index = KNNIndex(self.key_dim, self.capacity, backend=knn_backend, rebuild_threshold=rebuild_threshold)
-        self.values = np.zeros(self.capacity, dtype=np.float64)
-        self.recency = RecencyOrder(self.capacity)
-
-    def __len__(self) -> int:
-        return self.index.size
 
     def add_episode(self, keys: np.ndarray, returns: np.ndarray) -> int:
         """Write every step of a finished episode, in time order (one row each).
@@ -137,14 +131,7 @@ class EMACMemory:
         check_finite_returns(returns)
         evicted = 0
         for key, value in zip(keys, returns):
-            if self.index.size < self.capacity:
-                row = self.index.add(key)
-            else:
-                row = self.recency.oldest()
-                self.index.set_key(row, key)
-                evicted += 1
-            self.values[row] = value
-            self.recency.touch(row)
+            evicted += self.write(key, value)[1] >= 0
         return evicted
 
     def estimate(self, keys: np.ndarray) -> np.ndarray:
@@ -167,30 +154,3 @@ class EMACMemory:
             weights = valid.astype(np.float64)
         weights /= weights.sum(axis=1, keepdims=True)
         return (self.values[np.where(valid, rows, 0)] * weights).sum(axis=1)
-
-    def state_dict(self) -> dict[str, Any]:
-        """Used rows only, with their write times (which give the eviction order)."""
-        n = len(self)
-        return {
-            "keys": self.index.keys[:n].copy(),
-            "values": self.values[:n].copy(),
-            "last_update": self.recency.last_update[:n].copy(),
-            "clock": int(self.recency.clock),
-        }
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore exactly what :meth:`state_dict` returned.
-
-        :raises ValueError: if ``state`` is incomplete, mis-shaped, non-finite or larger than the capacity (the
-            memory is left unchanged then).
-        """
-        keys = check_saved_rows(state, "EMACMemory", self.key_dim, self.capacity, ("values",))
-        n = len(keys)
-        self.index.load_keys(keys)
-        self.values[:n] = np.asarray(state["values"], dtype=np.float64)
-        self.recency.rebuild_from_timestamps(np.asarray(state["last_update"], dtype=np.int64), int(state["clock"]))
-
-    def clear(self) -> None:
-        """Remove every row."""
-        self.index.clear()
-        self.recency.clear()

@@ -10,6 +10,8 @@ Public API (all batched over queries; keys are ``(n, key_dim)`` float32 arrays):
 * :class:`MFECMemory` (one :class:`MFECTable` per action; thesis Eq. 5.2):
   ``estimate(keys) -> (n, n_actions)``, ``greedy_actions(keys, rng)``,
   ``update_episode(keys, actions, returns)``, ``state_dict()/load_state_dict()``.
+* :class:`KNNValueTable` — bounded (key, value) rows with a kNN index and least-recently-updated eviction, the
+  base of :class:`MFECTable` and EMAC's memory.
 * :class:`KNNIndex` — exact Euclidean kNN over a preallocated, row-overwritable table
   (lazily rebuilt KD-tree + brute-forced delta, or faiss brute force).
 * :class:`RecencyOrder` — O(1) least-recently-updated eviction order.
@@ -26,12 +28,14 @@ from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
 from sb3_gcrl.memory.knn import KNNIndex
 from sb3_gcrl.memory.mfec_memory import MFECMemory, MFECTable
 from sb3_gcrl.memory.recency import RecencyOrder
+from sb3_gcrl.memory.value_table import KNNValueTable
 
 __all__ = [
     "GOAL_ENV_KEYS",
     "CECMemory",
     "EpisodeBuffers",
     "KNNIndex",
+    "KNNValueTable",
     "KeyEmbedding",
     "MFECMemory",
     "MFECTable",

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from sb3_gcrl.memory.knn import KNNBackend, KNNIndex
-from sb3_gcrl.memory.recency import RecencyOrder
-from sb3_gcrl.memory.validation import check_finite_returns, check_int, check_saved_rows
+from sb3_gcrl.memory.knn import KNNBackend
+from sb3_gcrl.memory.validation import check_finite_returns, check_int
+from sb3_gcrl.memory.value_table import KNNValueTable
 
 
 def argmax_random_ties(q: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
@@ -30,7 +30,7 @@ def argmax_random_ties(q: np.ndarray, rng: np.random.Generator | None) -> np.nda
     return (rng.random(q.shape) * ties).argmax(axis=1)
 
 
-class MFECTable:
+class MFECTable(KNNValueTable):
     """The value table ``Q_ec(., a)`` of one action.
 
     :param key_dim: key dimension.
@@ -48,16 +48,8 @@ class MFECTable:
         knn_backend: KNNBackend = "auto",
         rebuild_threshold: int | None = None,
     ) -> None:
-        self.key_dim = check_int("key_dim", key_dim)
-        self.capacity = check_int("capacity", capacity)
-        self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
-        self.index = KNNIndex(key_dim, self.capacity, backend=knn_backend, rebuild_threshold=rebuild_threshold)
-        self.values = np.zeros(self.capacity, dtype=np.float64)
-        self.recency = RecencyOrder(self.capacity)
+        super().__init__(key_dim, capacity, n_neighbors, knn_backend, rebuild_threshold)
         self._row_of: dict[bytes, int] = {}  # exact key bytes -> row
-
-    def __len__(self) -> int:
-        return self.index.size
 
     def lookup(self, key: np.ndarray) -> int:
         """Row holding exactly ``key`` (float32), or -1."""
@@ -71,16 +63,12 @@ class MFECTable:
                 self.values[row] = value
             self.recency.touch(row)
             return False
-        if self.index.size < self.capacity:
-            row = self.index.add(key)
-        else:
-            row = self.recency.oldest()
-            del self._row_of[self.index.keys[row].tobytes()]
-            self.index.set_key(row, key)
+        row, _ = self.write(key, value)
         self._row_of[key.tobytes()] = row
-        self.values[row] = value
-        self.recency.touch(row)
         return True
+
+    def _forget(self, row: int) -> None:
+        del self._row_of[self.index.keys[row].tobytes()]
 
     def estimate(self, keys: np.ndarray) -> np.ndarray:
         """``Q_ec(s, a)`` for a batch of float32 keys ``(n, key_dim)`` -> ``(n,)``.
@@ -106,33 +94,19 @@ class MFECTable:
                 out[missing] = self.values[neighbours].mean(axis=1)
         return out
 
-    def state_dict(self) -> dict[str, Any]:
-        """Used rows only."""
-        n = len(self)
-        return {
-            "keys": self.index.keys[:n].copy(),
-            "values": self.values[:n].copy(),
-            "last_update": self.recency.last_update[:n].copy(),
-            "clock": int(self.recency.clock),
-        }
-
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore exactly what :meth:`state_dict` returned.
 
         :raises ValueError: if ``state`` is incomplete, mis-shaped, non-finite or larger than the capacity
             (the table is left unchanged then).
         """
-        keys = check_saved_rows(state, "MFECTable", self.key_dim, self.capacity, ("values",))
-        n = len(keys)
-        self.index.load_keys(keys)
-        self.values[:n] = np.asarray(state["values"], dtype=np.float64)
-        self.recency.rebuild_from_timestamps(np.asarray(state["last_update"], dtype=np.int64), int(state["clock"]))
-        self._row_of = {keys[i].tobytes(): i for i in range(n)}
+        super().load_state_dict(state)
+        keys = self.index.keys[: len(self)]
+        self._row_of = {keys[i].tobytes(): i for i in range(len(self))}
 
     def clear(self) -> None:
         """Remove every row."""
-        self.index.clear()
-        self.recency.clear()
+        super().clear()
         self._row_of.clear()
 
 
