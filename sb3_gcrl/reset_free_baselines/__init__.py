@@ -1,0 +1,33 @@
+"""Reset-free baselines of thesis Ch. 3: MEDAL and R3L (forward-backward agents built from SB3's SAC).
+
+* :class:`ForwardBackwardWrapper` (with :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` below it): the forward and
+  backward phases of the reset-free stream.
+* :class:`ForwardBackwardSAC`: a forward SAC and a backward SAC acting and learning by phase, one buffer each.
+* :class:`MEDAL`: backward reward from a demonstration-state :class:`Discriminator`; demonstrations from
+  :func:`load_demos` (shipped for some tasks, made by ``scripts/make_demos.py``).
+* :class:`R3L`: backward reward from :class:`RND` novelty.
+
+Docs: ``docs/reset_free_baselines.md``.
+"""
+
+from sb3_gcrl.reset_free_baselines.buffers import PhaseReplayBuffer
+from sb3_gcrl.reset_free_baselines.demos import Demonstrations, available_demos, load_demos
+from sb3_gcrl.reset_free_baselines.forward_backward import ForwardBackwardSAC
+from sb3_gcrl.reset_free_baselines.medal import MEDAL
+from sb3_gcrl.reset_free_baselines.r3l import R3L
+from sb3_gcrl.reset_free_baselines.reward_models import RND, Discriminator
+from sb3_gcrl.reset_free_baselines.wrapper import ForwardBackwardScheduler, ForwardBackwardWrapper
+
+__all__ = [
+    "MEDAL",
+    "R3L",
+    "RND",
+    "Demonstrations",
+    "Discriminator",
+    "ForwardBackwardSAC",
+    "ForwardBackwardScheduler",
+    "ForwardBackwardWrapper",
+    "PhaseReplayBuffer",
+    "available_demos",
+    "load_demos",
+]
