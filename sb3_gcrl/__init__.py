@@ -13,6 +13,7 @@ from sb3_gcrl.imgep import TabularIMGEP
 from sb3_gcrl.mfec import MFEC
 from sb3_gcrl.morefree import MoReFree
 from sb3_gcrl.post_exploration import PostExplorationCallback, PostExplorationWrapper
+from sb3_gcrl.reset_free_baselines import MEDAL, R3L, ForwardBackwardWrapper
 from sb3_gcrl.tabular import TabularEpisodicControl, TabularQLearning, TabularTwoMemory
 from sb3_gcrl.two_memory import TwoMemoryDQN, TwoMemorySAC
 from sb3_gcrl.version import __version__
@@ -24,12 +25,15 @@ __all__ = [
     "CEC",
     "EMAC",
     "ExecutedActionHerReplayBuffer",
+    "ForwardBackwardWrapper",
     "GoExploreWrapper",
     "GoalCommandWrapper",
+    "MEDAL",
     "MFEC",
     "MoReFree",
     "PostExplorationCallback",
     "PostExplorationWrapper",
+    "R3L",
     "ResetFreeCallback",
     "ResetFreeWrapper",
     "TabularIMGEP",

@@ -23,6 +23,8 @@ ALGORITHMS["tabular_2m"] = "sb3_gcrl.tabular:TabularTwoMemory"
 ALGORITHMS["imgep"] = "sb3_gcrl.imgep:TabularIMGEP"
 ALGORITHMS["morefree"] = "sb3_gcrl.morefree:MoReFree"
 ALGORITHMS["emac"] = "sb3_gcrl.emac:EMAC"
+ALGORITHMS["medal"] = "sb3_gcrl.reset_free_baselines:MEDAL"
+ALGORITHMS["r3l"] = "sb3_gcrl.reset_free_baselines:R3L"
 
 
 def load_algorithm(name: str) -> type[BaseAlgorithm]:

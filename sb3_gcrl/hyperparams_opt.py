@@ -16,7 +16,9 @@ The ranges are the thesis's tuned values where it gives them:
 - tabular Q / EC: the authors' tabular 2M settings (learning rate 0.01, epsilon 0.1 -> 0.05), widened likewise;
 - EMAC (the Ch. 4 baseline): around the paper's alpha, k and projection dimension;
 - MoReFree (Ch. 3): the train ratios of Table 3.2, learning rate, imagination horizon and entropy around PEG's
-  defaults.
+  defaults;
+- MEDAL and R3L (Ch. 3 baselines): learning rate and discount around the official MEDAL code's, and the update
+  frequency of the backward reward model.
 
 Settings of the env wrappers (MoReFree's alpha, the horizons H_G = H_E, the hard-reset interval) are not
 constructor arguments of an algorithm, and RL-Zoo's sampler interface can only return those; tune them by running
@@ -140,6 +142,18 @@ SEARCH_SPACES: dict[str, dict[str, Space]] = {
         "learning_rate": Range(1e-4, 1e-3, log=True),
         "imagination_horizon": Choice((10, 15, 20)),
         "entropy_coef": Range(1e-5, 1e-3, log=True),
+    },
+    # MEDAL / R3L (Ch. 3 baselines): SAC's learning rate and discount around the official MEDAL code's 3e-4 / 0.99,
+    # and how often the backward reward model (discriminator / RND) is updated (MEDAL: every 10 env steps)
+    "medal": {
+        "learning_rate": Range(1e-4, 1e-3, log=True),
+        "gamma": Choice((0.95, 0.98, 0.99)),
+        "reward_model_train_freq": Choice((1, 10, 50)),
+    },
+    "r3l": {
+        "learning_rate": Range(1e-4, 1e-3, log=True),
+        "gamma": Choice((0.95, 0.98, 0.99)),
+        "reward_model_train_freq": Choice((1, 10, 50)),
     },
 }
 

@@ -72,6 +72,28 @@ class Case:
 
 
 TINY_NET = {"net_arch": [16]}
+
+
+def _forward_backward_growing_tree() -> gym.Env:
+    """GrowingTreeGoal in MEDAL/R3L's forward/backward phases (20-step segments), switched to reset-free training."""
+    from sb3_gcrl.reset_free_baselines import ForwardBackwardWrapper
+    from sb3_gcrl.wrappers import ResetFreeWrapper
+
+    inner = ResetFreeWrapper(gym.make("GCRL/GrowingTreeGoal-v0"), hard_reset_every=500, segment_length=20)
+    env = ForwardBackwardWrapper(inner)
+    env.set_training_mode(True)
+    return env
+
+
+gym.register("GCRLTest/GrowingTreeForwardBackward-v0", entry_point=_forward_backward_growing_tree)
+FORWARD_BACKWARD_KWARGS = {
+    "learning_starts": 50,
+    "buffer_size": 1_000,
+    "batch_size": 16,
+    "train_freq": 4,
+    "policy_kwargs": TINY_NET,
+    "reward_model_batch_size": 32,
+}
 CASES: dict[str, Case] = {
     "cec": Case("cec", "Pendulum-v1", "CECPolicy", {"capacity": 500, "distance_threshold": 0.1}),
     "mfec": Case("mfec", "CartPole-v1", "MFECPolicy", {"capacity_per_action": 500, "projection_dim": None}),
@@ -126,6 +148,18 @@ CASES: dict[str, Case] = {
             "imagination_starts": 16,
             "policy_kwargs": MOREFREE_TINY_NET,
         },
+    ),
+    "medal": Case(
+        "medal",
+        "GCRLTest/GrowingTreeForwardBackward-v0",
+        "MultiInputPolicy",
+        {**FORWARD_BACKWARD_KWARGS, "demos": "GCRL/GrowingTreeGoal-v0", "reward_model_kwargs": {"hidden": [16]}},
+    ),
+    "r3l": Case(
+        "r3l",
+        "GCRLTest/GrowingTreeForwardBackward-v0",
+        "MultiInputPolicy",
+        {**FORWARD_BACKWARD_KWARGS, "reward_model_kwargs": {"hidden": [16, 8]}},
     ),
 }
 #: extra observation spaces (Dict goal observations) on top of one case per algorithm
