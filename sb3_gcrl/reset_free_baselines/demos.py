@@ -71,6 +71,40 @@ class Demonstrations:
         last = np.append(self.episode_starts[1:], True)  # the last transition of each episode
         return np.concatenate([first, nxt[last]]).astype(np.float32)
 
+    def check_spaces(
+        self,
+        observation_space: spaces.Space | None,
+        action_space: spaces.Space | None,
+        where: str = "demonstrations",
+    ) -> None:
+        """Check that the observations and actions fit an env's spaces.
+
+        :param observation_space: the env's Dict observation space (``None``: not checked).
+        :param action_space: the env's action space (``None``: not checked).
+        :param where: what to call the demonstrations in the error message.
+        :raises ValueError: a key or a shape differs, named in the message.
+        """
+        if observation_space is not None:
+            if not isinstance(observation_space, spaces.Dict):
+                raise TypeError(f"demonstrations are for Dict observation spaces (goal envs), got {observation_space}")
+            if set(self.observations) != set(observation_space.spaces):
+                raise ValueError(
+                    f"{where}: observation keys {sorted(self.observations)} differ from the env's "
+                    f"{sorted(observation_space.spaces)}"
+                )
+            for key, space in observation_space.spaces.items():
+                for name, group in (("observations", self.observations), ("next_observations", self.next_observations)):
+                    if group[key].shape[1:] != space.shape:
+                        raise ValueError(
+                            f"{where}: {name}/{key} has shape {group[key].shape[1:]} per row, the env's space "
+                            f"{space.shape}; make demonstrations for this env with scripts/make_demos.py"
+                        )
+        if action_space is not None and self.actions.shape[1:] != action_space.shape:
+            raise ValueError(
+                f"{where}: actions have shape {self.actions.shape[1:]} per row, the env's action space "
+                f"{action_space.shape}"
+            )
+
     def save(self, path: str | Path) -> None:
         """Write the file format of :func:`load_demos` (compressed).
 
@@ -151,31 +185,12 @@ def load_demos(
     ]:
         if np.issubdtype(array.dtype, np.floating) and not np.all(np.isfinite(array)):
             raise ValueError(f"{where}: {name} holds NaN or infinite values")
-    if observation_space is not None:
-        if not isinstance(observation_space, spaces.Dict):
-            raise TypeError(f"demonstrations are for Dict observation spaces (goal envs), got {observation_space}")
-        if set(obs) != set(observation_space.spaces):
-            raise ValueError(
-                f"{where}: observation keys {sorted(obs)} differ from the env's {sorted(observation_space.spaces)}"
-            )
-        for key, space in observation_space.spaces.items():
-            for name, group in (("observations", obs), ("next_observations", next_obs)):
-                if group[key].shape[1:] != space.shape:
-                    raise ValueError(
-                        f"{where}: {name}/{key} has shape {group[key].shape[1:]} per row, the env's space "
-                        f"{space.shape}; make demonstrations for this env with scripts/make_demos.py"
-                    )
-    if action_space is not None and content["actions"].shape[1:] != action_space.shape:
-        raise ValueError(
-            f"{where}: actions have shape {content['actions'].shape[1:]} per row, the env's action space "
-            f"{action_space.shape}"
-        )
     metadata = {
         key: (value.item() if value.ndim == 0 else value)
         for key, value in content.items()
         if key in ("env_id", "seeds", "controller")
     }
-    return Demonstrations(
+    demos = Demonstrations(
         observations=obs,
         next_observations=next_obs,
         actions=content["actions"],
@@ -183,3 +198,5 @@ def load_demos(
         episode_starts=content["episode_starts"].astype(bool),
         metadata=metadata,
     )
+    demos.check_spaces(observation_space, action_space, where)
+    return demos

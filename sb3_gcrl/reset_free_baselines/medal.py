@@ -86,24 +86,13 @@ class MEDAL(ForwardBackwardSAC):
         super()._setup_model()
         if isinstance(self.demos, Demonstrations):
             demos = self.demos
-            self._check_demos(demos)
+            demos.check_spaces(self.observation_space, self.action_space, "MEDAL's demos")
         else:
             demos = load_demos(self.demos, self.observation_space, self.action_space)
         self._demos = demos
         self._demo_states = demos.states(self.state_key)
         if self.demos_to_buffers:
             self._add_demos_to_buffers(demos)
-
-    def _check_demos(self, demos: Demonstrations) -> None:
-        space = self.observation_space
-        for key, sub in space.spaces.items():  # type: ignore[union-attr]
-            if key not in demos.observations or demos.observations[key].shape[1:] != sub.shape:
-                raise ValueError(
-                    f"MEDAL demos do not match the env: observations/{key} "
-                    f"{None if key not in demos.observations else demos.observations[key].shape[1:]} vs {sub.shape}"
-                )
-        if demos.actions.shape[1:] != self.action_space.shape:
-            raise ValueError(f"MEDAL demos: actions {demos.actions.shape[1:]} vs the env's {self.action_space.shape}")
 
     def _add_demos_to_buffers(self, demos: Demonstrations) -> None:
         """Add every demonstration transition to the forward and the backward buffer (flagged as demonstrations)."""

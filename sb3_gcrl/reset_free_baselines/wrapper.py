@@ -39,8 +39,10 @@ PHASES = ("forward", "backward")
 class ForwardBackwardScheduler(EvaluationGoalScheduler):
     """A task goal g* ~ rho_g* for every segment; the segments are labelled forward and backward in turn.
 
-    The first segment after a physical reset is a forward one (MEDAL's code starts the forward policy after a hard
-    reset).
+    Each call to :meth:`next_goal` (a new segment) switches the phase; the first segment after a physical reset in
+    training mode is a forward one (MEDAL's code starts the forward policy after a hard reset). The phase before the
+    first call is forward: the segment that starts in evaluation mode, before the training env is switched to
+    training mode, counts as a forward one, so the next is a backward one.
 
     :param task_goals: the env's task-relevant goals.
     """
@@ -49,15 +51,15 @@ class ForwardBackwardScheduler(EvaluationGoalScheduler):
 
     def __init__(self, task_goals: TaskRelevantGoals) -> None:
         super().__init__(task_goals)
-        self._next = "forward"
+        self._physical_reset = False
 
     def reset_pending(self) -> None:
         """After a physical reset the next segment is a forward one."""
-        self._next = "forward"
+        self._physical_reset = True
 
     def next_goal(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
-        self.kind = self._next
-        self._next = "backward" if self.kind == "forward" else "forward"
+        self.kind = "forward" if self._physical_reset or self.kind == "backward" else "backward"
+        self._physical_reset = False
         return super().next_goal(obs, rng)
 
 
