@@ -9,6 +9,7 @@ from sb3_gcrl.cec import CEC
 from sb3_gcrl.emac import EMAC
 from sb3_gcrl.envs import register_envs
 from sb3_gcrl.her import ExecutedActionHerReplayBuffer, TaskRelevantHerReplayBuffer
+from sb3_gcrl.ibc import IBC
 from sb3_gcrl.imgep import TabularIMGEP
 from sb3_gcrl.mfec import MFEC
 from sb3_gcrl.morefree import MoReFree
@@ -28,6 +29,7 @@ __all__ = [
     "ForwardBackwardWrapper",
     "GoExploreWrapper",
     "GoalCommandWrapper",
+    "IBC",
     "MEDAL",
     "MFEC",
     "MoReFree",

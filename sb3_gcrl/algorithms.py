@@ -25,6 +25,7 @@ ALGORITHMS["morefree"] = "sb3_gcrl.morefree:MoReFree"
 ALGORITHMS["emac"] = "sb3_gcrl.emac:EMAC"
 ALGORITHMS["medal"] = "sb3_gcrl.reset_free_baselines:MEDAL"
 ALGORITHMS["r3l"] = "sb3_gcrl.reset_free_baselines:R3L"
+ALGORITHMS["ibc"] = "sb3_gcrl.ibc:IBC"
 
 
 def load_algorithm(name: str) -> type[BaseAlgorithm]:

@@ -161,6 +161,14 @@ CASES: dict[str, Case] = {
         "MultiInputPolicy",
         {**FORWARD_BACKWARD_KWARGS, "reward_model_kwargs": {"hidden": [16, 8]}},
     ),
+    # a plain goal env (no IBC wrapper: every step is the forward agent's); SB3's default buffer, since a HER buffer
+    # needs the env at load time; the IBC phases and HER are in tests/test_ibc.py
+    "ibc": Case(
+        "ibc",
+        "GCRL/GrowingTreeGoal-v0",
+        "MultiInputPolicy",
+        {"learning_starts": 50, "buffer_size": 1_000, "batch_size": 16, "train_freq": 4, "policy_kwargs": TINY_NET},
+    ),
 }
 #: extra observation spaces (Dict goal observations) on top of one case per algorithm
 EXTRA_CASES: dict[str, Case] = {

@@ -1,0 +1,266 @@
+"""IBC, Implicit and Bidirectional Curriculum (J. Kim et al., ICML 2023): the reset-free baseline of thesis Ch. 3.
+
+Two goal-conditioned SAC agents (the authors' base learner), each with its own replay buffer (HER in the configs, as
+the authors' ``use_forward_her``/``use_backward_her``):
+
+* the **forward** agent is this SAC itself (``self.policy``): it runs the ``forward`` and ``auxiliary`` segments, and
+  it is what :meth:`~stable_baselines3.SAC.predict` and evaluation use (episodic, on rho_g*);
+* the **backward** agent (:attr:`IBC.backward`, an SB3 ``SAC``) runs the ``back`` segments, toward the backward
+  curriculum goals.
+
+Which segment runs, and toward which goal, is decided by the env: :func:`~sb3_gcrl.ibc.ibc_go_explore` wraps it in the
+package's :class:`~sb3_gcrl.wrappers.GoExploreWrapper` (switched to reset-free mode by
+:class:`~sb3_gcrl.callbacks.ResetFreeCallback`) with an :class:`~sb3_gcrl.ibc.IBCCurriculumScheduler`, which this
+algorithm attaches to at the start of ``learn`` so that the curriculum reads the forward agent's values. The kind of
+the current segment (the wrapper's ``goal_kind``) picks the acting agent and the buffer of each transition. On an env
+without that wrapper every step is a forward step (plain goal-conditioned SAC).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
+from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
+
+from sb3_gcrl.ibc.curriculum import BACK, FORWARD_KINDS, IBCCurriculumScheduler, find_ibc_scheduler
+
+SelfIBC = TypeVar("SelfIBC", bound="IBC")
+
+
+class _BackwardLogger:
+    """Forwards the backward agent's ``train/*`` records to the main logger as ``train_backward/*``."""
+
+    def __init__(self, logger: Logger) -> None:
+        self.logger = logger
+
+    def record(self, key: str, value: Any, exclude: str | tuple[str, ...] | None = None) -> None:
+        self.logger.record(key.replace("train/", "train_backward/", 1), value, exclude)
+
+    def record_mean(self, key: str, value: Any, exclude: str | tuple[str, ...] | None = None) -> None:
+        self.logger.record_mean(key.replace("train/", "train_backward/", 1), value, exclude)
+
+
+def _has_samples(buffer: ReplayBuffer) -> bool:
+    """Whether ``buffer`` can be sampled (a HER buffer needs one finished episode)."""
+    if isinstance(buffer, HerReplayBuffer):
+        return bool(np.any(buffer.ep_length > 0))
+    return buffer.size() > 0
+
+
+class IBC(SAC):
+    """IBC: forward and backward goal-conditioned SAC agents with IBC's curriculum (reset-free, thesis Ch. 3 baseline).
+
+    Every SAC argument applies to both agents (the authors use the same settings for both). Defaults follow SB3's SAC;
+    the authors' values (learning rate 1e-4, batch 512, tau 0.01, initial temperature 0.5, 3 x 512 networks, HER
+    ``future`` with 4 sampled goals) are in the ``ibc_<task>.yml`` configs.
+
+    :param policy: policy class or alias (``"MultiInputPolicy"``: goal observations are Dicts).
+    :param env: goal env, normally wrapped by :func:`~sb3_gcrl.ibc.ibc_go_explore` (one env: the phase of the
+        segment picks the agent and the buffer for the whole VecEnv).
+    :param value_samples: policy actions averaged in the curriculum's value V(s -> g) = E_a min(Q1, Q2)(s, g, a)
+        (official: 10).
+    :param kwargs: the arguments of :class:`~stable_baselines3.SAC`.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = SAC.policy_aliases  # type: ignore[assignment]
+    backward: SAC
+
+    def __init__(
+        self, policy: str | type[BasePolicy], env: GymEnv | str | None, value_samples: int = 10, **kwargs: Any
+    ):
+        if int(value_samples) != value_samples or value_samples < 1:
+            raise ValueError(f"value_samples must be an integer >= 1, got {value_samples}")
+        self.value_samples = int(value_samples)
+        self._sac_kwargs = {k: v for k, v in kwargs.items() if k not in ("_init_setup_model", "tensorboard_log")}
+        self._acting = FORWARD_KINDS[0]
+        #: env steps taken by each agent
+        self.agent_steps = {"forward": 0, "backward": 0}
+        super().__init__(policy, env, **kwargs)
+        if self.env is not None:
+            self._check_env(self.env)
+
+    # --- set-up ---------------------------------------------------------------------------------------------------
+    def _check_env(self, env: VecEnv) -> None:
+        if not isinstance(self.observation_space, spaces.Dict) or "desired_goal" not in self.observation_space.spaces:
+            raise TypeError("IBC trains goal-conditioned agents: the env must have a Dict goal observation")
+        if self.action_space is not None and not isinstance(self.action_space, spaces.Box):
+            raise TypeError("IBC's agents are SAC: Box actions only")
+        schedulers = env.get_attr("scheduler") if env.num_envs > 1 and env.has_attr("scheduler") else []
+        if any(isinstance(s, IBCCurriculumScheduler) for s in schedulers):
+            raise ValueError(
+                "IBC routes each segment to the forward or the backward agent for the whole VecEnv: train on one "
+                "env wrapped in ibc_go_explore (n_envs=1)"
+            )
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        kwargs = {k: v for k, v in self._sac_kwargs.items() if k not in ("seed", "device", "verbose")}
+        kwargs["target_entropy"] = self.target_entropy  # resolved from the action space (the backward agent has no env)
+        self.backward = SAC(self.policy_class, None, device=self.device, _init_setup_model=False, **kwargs)
+        self.backward.observation_space = self.observation_space
+        self.backward.action_space = self.action_space
+        self.backward.n_envs = self.n_envs
+        self.backward.env = self.env
+        self.backward.replay_buffer_class = self.replay_buffer_class
+        self.backward.replay_buffer_kwargs = dict(self.replay_buffer_kwargs)
+        self.backward._setup_model()
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "backward", "_acting"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, variables = super()._get_torch_save_params()
+        back_dicts, back_variables = self.backward._get_torch_save_params()
+        return (
+            [*state_dicts, *(f"backward.{name}" for name in back_dicts)],
+            [*variables, *(f"backward.{name}" for name in back_variables)],
+        )
+
+    def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
+        super().set_env(env, force_reset)
+        assert self.env is not None
+        self._check_env(self.env)
+        self.backward.env = self.env
+        self.backward.n_envs = self.n_envs
+        if isinstance(self.backward.replay_buffer, HerReplayBuffer) and self.backward.replay_buffer.env is None:
+            self.backward.replay_buffer.set_env(self.env)
+
+    def set_random_seed(self, seed: int | None = None) -> None:
+        super().set_random_seed(seed)
+        if seed is not None and getattr(self, "backward", None) is not None:
+            self.backward.action_space.seed(seed + 1)
+
+    # --- phases ----------------------------------------------------------------------------------------------------
+    def _schedulers(self) -> list[IBCCurriculumScheduler]:
+        env = self.env
+        if env is None:
+            return []
+        base = env.unwrapped if isinstance(env, VecEnvWrapper) else env
+        if isinstance(base, DummyVecEnv):
+            found = [find_ibc_scheduler(e) for e in base.envs]
+            return [s for s in found if s is not None]
+        return []
+
+    def _segment_kind(self) -> str:
+        """Kind of the segment the (single) env is in: ``forward``/``auxiliary`` (forward agent) or ``back``."""
+        assert self.env is not None
+        if not self.env.has_attr("goal_kind") or not self.env.has_attr("training"):
+            return FORWARD_KINDS[0]
+        kinds = [
+            k if t else FORWARD_KINDS[0] for k, t in zip(self.env.get_attr("goal_kind"), self.env.get_attr("training"))
+        ]
+        return BACK if BACK in kinds else kinds[0]
+
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
+        out = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+        self.backward.set_logger(_BackwardLogger(self.logger))  # type: ignore[arg-type]
+        for scheduler in self._schedulers():
+            scheduler.attach(self)
+        return out
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        self._acting = self._segment_kind()
+        if self._acting != BACK:
+            self.agent_steps["forward"] += n_envs
+            return super()._sample_action(learning_starts, action_noise, n_envs)
+        self.agent_steps["backward"] += n_envs
+        if self.num_timesteps < learning_starts:  # the random warm-up actions are shared
+            return super()._sample_action(learning_starts, action_noise, n_envs)
+        self.backward._last_obs = self._last_obs
+        return self.backward._sample_action(0, action_noise, n_envs)
+
+    def _store_transition(self, replay_buffer: ReplayBuffer, *args: Any, **kwargs: Any) -> None:
+        buffer = self.backward.replay_buffer if self._acting == BACK else replay_buffer
+        super()._store_transition(buffer, *args, **kwargs)  # type: ignore[arg-type]
+
+    # --- training --------------------------------------------------------------------------------------------------
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        assert self.replay_buffer is not None and self.backward.replay_buffer is not None
+        if _has_samples(self.replay_buffer):
+            super().train(gradient_steps, batch_size)
+        if _has_samples(self.backward.replay_buffer):
+            self.backward._current_progress_remaining = self._current_progress_remaining
+            self.backward.train(gradient_steps, batch_size)
+
+    def curriculum_values(self, observations: dict[str, np.ndarray]) -> np.ndarray:
+        """The forward agent's V(s -> g) = mean over ``value_samples`` actions a ~ pi(s, g) of min(Q1, Q2)(s, g, a).
+
+        :param observations: a batch of goal observations (the env's, unnormalised).
+        :return: shape ``(n,)``.
+        """
+        obs_tensor, _ = self.policy.obs_to_tensor(observations)
+        with th.no_grad():
+            n = int(next(iter(obs_tensor.values())).shape[0])  # type: ignore[union-attr]
+            tiled = {k: v.repeat(self.value_samples, *([1] * (v.dim() - 1))) for k, v in obs_tensor.items()}  # type: ignore[union-attr]
+            actions, _ = self.actor.action_log_prob(tiled)
+            q_values = th.min(th.cat(self.critic(tiled, actions), dim=1), dim=1).values
+            return q_values.view(self.value_samples, n).mean(dim=0).cpu().numpy()
+
+    # --- logging ---------------------------------------------------------------------------------------------------
+    def dump_logs(self) -> None:
+        self.record_ibc_logs()
+        super().dump_logs()
+
+    def record_ibc_logs(self) -> None:
+        """Record the phase shares and the curriculum state (``ibc/`` keys) in the logger."""
+        total = max(sum(self.agent_steps.values()), 1)
+        self.logger.record("ibc/forward_step_share", self.agent_steps["forward"] / total)
+        self.logger.record("ibc/backward_step_share", self.agent_steps["backward"] / total)
+        schedulers = self._schedulers()
+        if not schedulers:
+            return
+        counts: dict[str, int] = {}
+        for scheduler in schedulers:
+            for kind, count in scheduler.segment_counts.items():
+                counts[kind] = counts.get(kind, 0) + count
+        n_segments = max(sum(counts.values()), 1)
+        for kind, count in counts.items():
+            self.logger.record(f"ibc/{kind}_segment_share", count / n_segments)
+        scheduler = schedulers[0]
+        self.logger.record("ibc/curriculum_updates", scheduler.n_updates)
+        self.logger.record("ibc/curriculum_trajectories", len(scheduler.trajectories))
+        if scheduler.n_updates:
+            self.logger.record("ibc/curriculum_goal_cost", scheduler.last_cost)
+            self.logger.record("ibc/curriculum_goal_distance_to_task", scheduler.last_target_distance)
+        if scheduler.forward_pool is not None:
+            mean = scheduler.forward_pool.mean(axis=0)
+            for i, value in enumerate(mean[:8]):
+                self.logger.record(f"ibc/curriculum_goal_mean_{i}", float(value))
+
+    def learn(  # type: ignore[override]
+        self: SelfIBC,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str = "IBC",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfIBC:
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
