@@ -345,3 +345,48 @@ def test_construction_errors_name_the_fix():
         ForwardBackwardWrapper(ResetFreeWrapper(gym.make(ENV_ID)))
     with pytest.raises(ValueError, match="state_key"):
         R3L("MultiInputPolicy", env, state_key="state")
+
+
+# ------------------------------------------------------------------------------------------------ zoo configs
+CONFIGS = sorted((Path(sb3_gcrl.__file__).parent / "zoo_configs").glob("*.yml"))
+BASELINE_CONFIGS = [p for p in CONFIGS if p.name.startswith(("medal_", "r3l_"))]
+#: RL-Zoo keys that are not constructor arguments
+ZOO_KEYS = {"n_timesteps", "policy", "env_wrapper", "callback", "monitor_kwargs"}
+
+
+def test_configs_exist_for_every_task_with_demonstrations_and_r3l_for_every_reset_free_task():
+    names = {p.stem for p in BASELINE_CONFIGS}
+    tasks = {p.stem.removeprefix("reset_free_").removesuffix("_naive") for p in CONFIGS if p.stem.endswith("_naive")}
+    assert {f"r3l_{task}" for task in tasks} <= names and len(tasks) == 8
+    assert {"medal_pointumaze", "medal_tabletop"} <= names
+
+
+@pytest.mark.parametrize("config", BASELINE_CONFIGS, ids=lambda p: p.stem)
+def test_config_keys_are_constructor_arguments(config: Path):
+    import inspect
+
+    import yaml
+
+    ((env_id, section),) = yaml.safe_load(config.read_text()).items()
+    cls = MEDAL if config.name.startswith("medal_") else R3L
+    accepted = set(inspect.signature(cls).parameters) | set(inspect.signature(ForwardBackwardSAC).parameters)
+    assert set(section) - ZOO_KEYS <= accepted
+    assert "sb3_gcrl.reset_free_baselines.ForwardBackwardWrapper" in section["env_wrapper"]
+    if cls is MEDAL:
+        load_demos(section["demos"], gym.make(env_id).observation_space, gym.make(env_id).action_space)
+
+
+@pytest.mark.parametrize("name", ["medal_pointumaze", "r3l_tabletop"])
+def test_config_builds_and_trains_briefly(name: str):
+    import yaml
+    from rl_zoo3.utils import get_wrapper_class
+
+    config = next(p for p in BASELINE_CONFIGS if p.stem == name)
+    ((env_id, section),) = yaml.safe_load(config.read_text()).items()
+    env = make_vec_env(env_id, n_envs=1, seed=0, wrapper_class=get_wrapper_class(section))
+    kwargs = {k: v for k, v in section.items() if k not in ZOO_KEYS | {"policy_kwargs"}}
+    kwargs.update(learning_starts=20, batch_size=16, buffer_size=5_000, reward_model_batch_size=32)
+    cls = MEDAL if name.startswith("medal_") else R3L
+    model = cls(section["policy"], env, policy_kwargs={"net_arch": [16]}, seed=0, **kwargs)
+    model.learn(320, callback=ResetFreeCallback(), log_interval=None)  # the first backward phase starts at step 300
+    assert model.num_timesteps == 320 and model.backward_buffer.n_visited() == 20
