@@ -16,7 +16,8 @@ from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
 from sb3_gcrl.ibc import IBC, IBCCurriculumScheduler, find_ibc_scheduler, ibc_go_explore
-from sb3_gcrl.wrappers import ResetFreeWrapper
+from sb3_gcrl.wrappers import GoExploreWrapper, ResetFreeWrapper
+from sb3_gcrl.wrappers.mode import find_wrapper
 
 ENV_ID = "GCRL/GrowingTreeGoal-v0"  # 1-D heights; rho_0 = 0, rho_g* = 1; actions change the height by <= 0.1
 TINY = {"net_arch": [16]}
@@ -247,3 +248,59 @@ def test_errors_name_the_fix():
         ibc_go_explore(ResetFreeWrapper(gym.make(ENV_ID), eval_horizon=20), curriculum_kwargs={"success": near})
     with pytest.raises(ValueError, match="go_steps"):
         ibc_go_explore(gym.make(ENV_ID))
+
+
+# ---------------------------------------------------------------------------------------------------------- configs
+REPO = Path(__file__).resolve().parents[1]
+IBC_CONFIGS = sorted((REPO / "sb3_gcrl" / "zoo_configs").glob("ibc_*.yml"))
+
+
+def test_a_config_for_every_reset_free_task():
+    import yaml
+
+    from sb3_gcrl.envs.reset_free import RESET_FREE_TASKS
+
+    assert {env_id for p in IBC_CONFIGS for env_id in yaml.safe_load(p.read_text())} == set(RESET_FREE_TASKS)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("config", IBC_CONFIGS, ids=[p.stem for p in IBC_CONFIGS])
+def test_every_config_builds_its_ibc_env(config: Path):
+    """The env_wrapper chain RL-Zoo builds from each config accepts its kwargs and runs IBC's segments reset-free."""
+    import yaml
+    from rl_zoo3.utils import get_wrapper_class
+
+    ((env_id, hyperparams),) = yaml.safe_load(config.read_text()).items()
+    env = get_wrapper_class(hyperparams)(gym.make(env_id))
+    scheduler = find_ibc_scheduler(env)
+    assert scheduler is not None and scheduler.n_targets == 50
+    env.reset(seed=0)
+    env.set_training_mode(True)
+    env.action_space.seed(0)
+    wrapper = find_wrapper(env, GoExploreWrapper)
+    for _ in range(2 * wrapper.go_steps + 2):  # a forward segment (random actions: no success), then a back one
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+        if scheduler.segment_counts["back"]:
+            break
+    assert wrapper.explore_steps == 0 and scheduler.segment_counts["back"] == 1
+    env.close()
+
+
+@pytest.mark.slow
+def test_pointumaze_config_trains_under_rl_zoo(tmp_path: Path):
+    import subprocess
+    import sys
+
+    cmd = [
+        sys.executable, "-m", "sb3_gcrl", "train", "--algo", "ibc", "--env", "GCRL/PointUMazeGoal-v0",
+        "-conf", "ibc_pointumaze", "--gym-packages", "sb3_gcrl", "-n", "700", "--eval-freq", "600",
+        "--eval-episodes", "1", "--seed", "0", "--num-threads", "1", "--log-interval", "2", "-f", str(tmp_path),
+        "-params", "learning_starts:300", "batch_size:32", "policy_kwargs:dict(net_arch=[16])",
+    ]  # fmt: skip
+    result = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=900)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    assert "backward_step_share" in result.stdout and "train_backward/" in result.stdout
+    evaluations = np.load(next(tmp_path.glob("ibc/*/evaluations.npz")))
+    assert np.all(evaluations["ep_lengths"] == 300)  # evaluation stays episodic (T_eval)

@@ -195,10 +195,12 @@ class IBC(SAC):
 
     # --- training --------------------------------------------------------------------------------------------------
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        """Update the agent that acted last (official: only the acting agent updates), once it has data."""
         assert self.replay_buffer is not None and self.backward.replay_buffer is not None
-        if _has_samples(self.replay_buffer):
-            super().train(gradient_steps, batch_size)
-        if _has_samples(self.backward.replay_buffer):
+        if self._acting != BACK:
+            if _has_samples(self.replay_buffer):
+                super().train(gradient_steps, batch_size)
+        elif _has_samples(self.backward.replay_buffer):
             self.backward._current_progress_remaining = self._current_progress_remaining
             self.backward.train(gradient_steps, batch_size)
 
