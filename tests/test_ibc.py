@@ -108,6 +108,9 @@ def test_commanded_goals_and_acting_agent_through_the_wrapper_and_ibc():
     stored = model.backward.replay_buffer.actions[: model.backward.replay_buffer.size(), 0]
     np.testing.assert_allclose(stored, 0.5, rtol=1e-6)
     assert not np.allclose(model.replay_buffer.actions[: model.replay_buffer.size(), 0], 0.5)
+    # only the agent that acted is updated (official), one gradient step per env step
+    assert model.backward._n_updates > 0 and model._n_updates > 0
+    assert model._n_updates + model.backward._n_updates <= model.num_timesteps
     # back segments are commanded backward curriculum goals, forward segments forward ones (or a task goal)
     assert scheduler.segment_counts["back"] >= 1 and scheduler.n_updates >= 1
     assert scheduler.backward_pool is not None and scheduler.forward_pool is not None
@@ -217,7 +220,7 @@ def test_save_load_restores_both_agents_and_logs_ibc_keys(tmp_path: Path):
         "ibc/curriculum_updates",
     ):
         assert key in header
-    assert "train_backward/critic_loss" in header and "train/critic_loss" in header
+    assert "backward/critic_loss" in header and "train/critic_loss" in header
     obs = {k: np.concatenate([v, v + 0.5]) for k, v in model.env.reset().items()}  # type: ignore[union-attr]
     model.save(tmp_path / "ibc.zip")
     loaded = IBC.load(tmp_path / "ibc.zip", env=make_vec_env(ENV_ID, seed=1, wrapper_class=ibc_env))
@@ -301,6 +304,6 @@ def test_pointumaze_config_trains_under_rl_zoo(tmp_path: Path):
     ]  # fmt: skip
     result = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=900)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    assert "backward_step_share" in result.stdout and "train_backward/" in result.stdout
+    assert "backward_step_share" in result.stdout and "| backward/" in result.stdout
     evaluations = np.load(next(tmp_path.glob("ibc/*/evaluations.npz")))
     assert np.all(evaluations["ep_lengths"] == 300)  # evaluation stays episodic (T_eval)

@@ -26,7 +26,6 @@ from gymnasium import spaces
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
@@ -34,21 +33,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
 from sb3_gcrl.ibc.curriculum import BACK, FORWARD_KINDS, IBCCurriculumScheduler, find_ibc_scheduler
+from sb3_gcrl.reset_free_baselines.forward_backward import _PrefixedLogger  # the backward agent's train/* as backward/*
 
 SelfIBC = TypeVar("SelfIBC", bound="IBC")
-
-
-class _BackwardLogger:
-    """Forwards the backward agent's ``train/*`` records to the main logger as ``train_backward/*``."""
-
-    def __init__(self, logger: Logger) -> None:
-        self.logger = logger
-
-    def record(self, key: str, value: Any, exclude: str | tuple[str, ...] | None = None) -> None:
-        self.logger.record(key.replace("train/", "train_backward/", 1), value, exclude)
-
-    def record_mean(self, key: str, value: Any, exclude: str | tuple[str, ...] | None = None) -> None:
-        self.logger.record_mean(key.replace("train/", "train_backward/", 1), value, exclude)
 
 
 def _has_samples(buffer: ReplayBuffer) -> bool:
@@ -171,7 +158,7 @@ class IBC(SAC):
         progress_bar: bool = False,
     ) -> tuple[int, BaseCallback]:
         out = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
-        self.backward.set_logger(_BackwardLogger(self.logger))  # type: ignore[arg-type]
+        self.backward.set_logger(_PrefixedLogger(self.logger, "backward"))  # type: ignore[arg-type]
         for scheduler in self._schedulers():
             scheduler.attach(self)
         return out
