@@ -155,6 +155,13 @@ SEARCH_SPACES: dict[str, dict[str, Space]] = {
         "gamma": Choice((0.95, 0.98, 0.99)),
         "reward_model_train_freq": Choice((1, 10, 50)),
     },
+    # IBC (Ch. 3 baseline): SAC's learning rate and discount around the official IBC code's 1e-4 / 0.99, and the
+    # policy samples of the curriculum's value (official: 10); the curriculum itself is a wrapper setting
+    "ibc": {
+        "learning_rate": Range(1e-4, 1e-3, log=True),
+        "gamma": Choice((0.95, 0.98, 0.99)),
+        "value_samples": Choice((1, 10)),
+    },
 }
 
 
