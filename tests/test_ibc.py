@@ -266,6 +266,18 @@ def test_a_config_for_every_reset_free_task():
     assert {env_id for p in IBC_CONFIGS for env_id in yaml.safe_load(p.read_text())} == set(RESET_FREE_TASKS)
 
 
+@pytest.mark.parametrize("config", IBC_CONFIGS, ids=[p.stem for p in IBC_CONFIGS])
+def test_config_keys_are_constructor_arguments(config: Path):
+    import inspect
+
+    import yaml
+    from stable_baselines3 import SAC
+
+    ((_, section),) = yaml.safe_load(config.read_text()).items()
+    accepted = set(inspect.signature(IBC).parameters) | set(inspect.signature(SAC).parameters)
+    assert set(section) - {"n_timesteps", "policy", "env_wrapper", "callback", "monitor_kwargs"} <= accepted
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("config", IBC_CONFIGS, ids=[p.stem for p in IBC_CONFIGS])
 def test_every_config_builds_its_ibc_env(config: Path):
