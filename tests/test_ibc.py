@@ -230,7 +230,21 @@ def test_save_load_restores_both_agents_and_logs_ibc_keys(tmp_path: Path):
         )
     params = loaded.get_parameters()
     assert {"policy", "backward.policy", "backward.critic.optimizer", "backward.ent_coef_optimizer"} <= set(params)
+    model.save_replay_buffer(tmp_path / "buffers.pkl")
+    loaded.load_replay_buffer(tmp_path / "buffers.pkl")
+    for agent, copy in ((model, loaded), (model.backward, loaded.backward)):
+        assert copy.replay_buffer.size() == agent.replay_buffer.size() > 0
+        np.testing.assert_array_equal(copy.replay_buffer.actions, agent.replay_buffer.actions)
     loaded.learn(60, reset_num_timesteps=False, callback=ResetFreeCallback())
+    with pytest.raises(ValueError, match="forward and backward"):
+        loaded.load_replay_buffer(_save_other(tmp_path / "other.pkl"))
+
+
+def _save_other(path: Path) -> Path:
+    from stable_baselines3.common.save_util import save_to_pkl
+
+    save_to_pkl(path, {"forward": None})
+    return path
 
 
 # -------------------------------------------------------------------------------------------------------------- errors

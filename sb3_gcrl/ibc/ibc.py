@@ -18,6 +18,8 @@ without that wrapper every step is a forward step (plain goal-conditioned SAC).
 
 from __future__ import annotations
 
+import io
+import pathlib
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -28,6 +30,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.save_util import load_from_pkl, save_to_pkl
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
@@ -127,6 +130,36 @@ class IBC(SAC):
         super().set_random_seed(seed)
         if seed is not None and getattr(self, "backward", None) is not None:
             self.backward.action_space.seed(seed + 1)
+
+    def save_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase) -> None:
+        """Save both agents' replay buffers (forward and backward) in one pickle file.
+
+        :param path: file path or file object.
+        """
+        save_to_pkl(path, {"forward": self.replay_buffer, "backward": self.backward.replay_buffer}, self.verbose)
+
+    def load_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase, truncate_last_traj: bool = True) -> None:
+        """Load both replay buffers saved by :meth:`save_replay_buffer` (HER buffers get the model's env).
+
+        :param path: file path or file object.
+        :param truncate_last_traj: end the last, unfinished HER episode of each buffer (see SB3's ``HerReplayBuffer``).
+        """
+        buffers = load_from_pkl(path, self.verbose)
+        if not (
+            isinstance(buffers, dict)
+            and set(buffers) == {"forward", "backward"}
+            and all(isinstance(b, ReplayBuffer) for b in buffers.values())
+        ):
+            raise ValueError(f"{path} does not hold the forward and backward buffers of IBC.save_replay_buffer")
+        for agent, buffer in ((self, buffers["forward"]), (self.backward, buffers["backward"])):
+            if isinstance(buffer, HerReplayBuffer):
+                if self.env is None:
+                    raise ValueError("HER replay buffers need the env: load the model with env=... first")
+                buffer.set_env(self.env)
+                if truncate_last_traj:
+                    buffer.truncate_last_trajectory()
+            buffer.device = self.device
+            agent.replay_buffer = buffer
 
     # --- phases ----------------------------------------------------------------------------------------------------
     def _schedulers(self) -> list[IBCCurriculumScheduler]:
