@@ -228,6 +228,9 @@ def test_save_load_restores_both_agents_and_logs_ibc_keys(tmp_path: Path):
         np.testing.assert_array_equal(
             agent.predict(obs, deterministic=True)[0], copy.predict(obs, deterministic=True)[0]
         )
+    # SB3's load-time overrides reach both agents
+    tuned = IBC.load(tmp_path / "ibc.zip", env=make_vec_env(ENV_ID, wrapper_class=ibc_env), batch_size=8, tau=0.2)
+    assert (tuned.backward.batch_size, tuned.backward.tau) == (tuned.batch_size, tuned.tau) == (8, 0.2)
     params = loaded.get_parameters()
     assert {"policy", "backward.policy", "backward.critic.optimizer", "backward.ent_coef_optimizer"} <= set(params)
     model.save_replay_buffer(tmp_path / "buffers.pkl")

@@ -31,9 +31,10 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.save_util import load_from_pkl, save_to_pkl
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
+from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_gcrl.ibc.curriculum import BACK, FORWARD_KINDS, IBCCurriculumScheduler, find_ibc_scheduler
 from sb3_gcrl.reset_free_baselines.forward_backward import _PrefixedLogger  # the backward agent's train/* as backward/*
@@ -58,25 +59,92 @@ class IBC(SAC):
     :param policy: policy class or alias (``"MultiInputPolicy"``: goal observations are Dicts).
     :param env: goal env, normally wrapped by :func:`~sb3_gcrl.ibc.ibc_go_explore` (one env: the phase of the
         segment picks the agent and the buffer for the whole VecEnv).
+    :param learning_rate: see :class:`~stable_baselines3.SAC` (this and the other SAC arguments apply to both agents).
+    :param buffer_size: rows of each agent's replay buffer.
+    :param learning_starts: random-action warm-up steps (both phases); no update before.
+    :param batch_size: minibatch size of each update.
+    :param tau: soft target-update coefficient.
+    :param gamma: discount (also the curriculum's, official 0.99).
+    :param train_freq: env steps between two updates of the agent that acted.
+    :param gradient_steps: gradient steps per update.
+    :param action_noise: extra action noise (none in the official code).
+    :param replay_buffer_class: buffer class of both agents (the configs: SB3's ``HerReplayBuffer``).
+    :param replay_buffer_kwargs: its keyword arguments.
+    :param ent_coef: SAC's entropy coefficient (official: learned, from 0.5: ``"auto_0.5"``).
+    :param target_update_interval: gradient steps between target-network updates (official: 2).
+    :param target_entropy: SAC's target entropy (official: -dim(A), SB3's ``"auto"``).
+    :param stats_window_size: episodes (segments) in the rollout statistics.
+    :param tensorboard_log: tensorboard folder.
+    :param policy_kwargs: keyword arguments of both agents' policies.
+    :param verbose: verbosity.
+    :param seed: random seed.
+    :param device: torch device.
     :param value_samples: policy actions averaged in the curriculum's value V(s -> g) = E_a min(Q1, Q2)(s, g, a)
         (official: 10).
-    :param kwargs: the arguments of :class:`~stable_baselines3.SAC`.
+    :param _init_setup_model: build the networks at construction (SB3's load passes False).
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = SAC.policy_aliases  # type: ignore[assignment]
     backward: SAC
 
     def __init__(
-        self, policy: str | type[BasePolicy], env: GymEnv | str | None, value_samples: int = 10, **kwargs: Any
-    ):
+        self,
+        policy: str | type[SACPolicy],
+        env: GymEnv | str | None,
+        learning_rate: float | Schedule = 3e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 100,
+        batch_size: int = 256,
+        tau: float = 0.005,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        action_noise: ActionNoise | None = None,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        ent_coef: str | float = "auto",
+        target_update_interval: int = 1,
+        target_entropy: str | float = "auto",
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        value_samples: int = 10,
+        _init_setup_model: bool = True,
+    ) -> None:
         if int(value_samples) != value_samples or value_samples < 1:
             raise ValueError(f"value_samples must be an integer >= 1, got {value_samples}")
         self.value_samples = int(value_samples)
-        self._sac_kwargs = {k: v for k, v in kwargs.items() if k not in ("_init_setup_model", "tensorboard_log")}
         self._acting = FORWARD_KINDS[0]
         #: env steps taken by each agent
         self.agent_steps = {"forward": 0, "backward": 0}
-        super().__init__(policy, env, **kwargs)
+        super().__init__(
+            policy,
+            env,  # type: ignore[arg-type]
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            action_noise=action_noise,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            ent_coef=ent_coef,
+            target_update_interval=target_update_interval,
+            target_entropy=target_entropy,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=_init_setup_model,
+        )
         if self.env is not None:
             self._check_env(self.env)
 
@@ -95,9 +163,24 @@ class IBC(SAC):
 
     def _setup_model(self) -> None:
         super()._setup_model()
-        kwargs = {k: v for k, v in self._sac_kwargs.items() if k not in ("seed", "device", "verbose")}
-        kwargs["target_entropy"] = self.target_entropy  # resolved from the action space (the backward agent has no env)
-        self.backward = SAC(self.policy_class, None, device=self.device, _init_setup_model=False, **kwargs)
+        # the backward agent: the same SAC settings (read from this model, so that load-time overrides reach both)
+        self.backward = SAC(
+            self.policy_class,
+            None,  # type: ignore[arg-type]
+            learning_rate=self.learning_rate,
+            buffer_size=self.buffer_size,
+            learning_starts=0,  # the warm-up is this model's (it draws the random actions of both phases)
+            batch_size=self.batch_size,
+            tau=self.tau,
+            gamma=self.gamma,
+            gradient_steps=self.gradient_steps,
+            ent_coef=self.ent_coef,
+            target_update_interval=self.target_update_interval,
+            target_entropy=self.target_entropy,  # resolved from the action space (the backward agent has no env)
+            policy_kwargs=self.policy_kwargs,
+            device=self.device,
+            _init_setup_model=False,
+        )
         self.backward.observation_space = self.observation_space
         self.backward.action_space = self.action_space
         self.backward.n_envs = self.n_envs
@@ -107,7 +190,7 @@ class IBC(SAC):
         self.backward._setup_model()
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "backward", "_acting"]
+        return [*super()._excluded_save_params(), "backward"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()
@@ -125,11 +208,6 @@ class IBC(SAC):
         self.backward.n_envs = self.n_envs
         if isinstance(self.backward.replay_buffer, HerReplayBuffer) and self.backward.replay_buffer.env is None:
             self.backward.replay_buffer.set_env(self.env)
-
-    def set_random_seed(self, seed: int | None = None) -> None:
-        super().set_random_seed(seed)
-        if seed is not None and getattr(self, "backward", None) is not None:
-            self.backward.action_space.seed(seed + 1)
 
     def save_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase) -> None:
         """Save both agents' replay buffers (forward and backward) in one pickle file.
