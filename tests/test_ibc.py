@@ -12,6 +12,7 @@ import pytest
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
+from test_contracts import assert_same_state
 
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
@@ -336,3 +337,15 @@ def test_pointumaze_config_trains_under_rl_zoo(tmp_path: Path):
     assert "backward_step_share" in result.stdout and "| backward/" in result.stdout
     evaluations = np.load(next(tmp_path.glob("ibc/*/evaluations.npz")))
     assert np.all(evaluations["ep_lengths"] == 300)  # evaluation stays episodic (T_eval)
+
+
+def test_seeded_reset_free_training_is_deterministic():
+    runs = []
+    for _ in range(2):
+        model = make_model(seed=3)
+        model.learn(250, callback=ResetFreeCallback())
+        scheduler = find_ibc_scheduler(model.env.envs[0])  # type: ignore[union-attr]
+        runs.append((model.get_parameters(), scheduler.forward_pool.copy(), dict(model.agent_steps)))  # type: ignore[union-attr]
+    assert_same_state(runs[0][0], runs[1][0], "parameters")
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+    assert runs[0][2] == runs[1][2]

@@ -182,7 +182,7 @@ class IBCCurriculumScheduler(GoalScheduler):
     def _draw(self, achieved: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """A curriculum goal of the current kind not yet reached at ``achieved`` (official: two tries)."""
         pool = self._pool(BACK if self.kind == BACK else FORWARD, rng)
-        goal = pool[0]
+        goal = pool[0]  # replaced below
         for _ in range(2):
             goal = pool[rng.integers(len(pool))]
             if self.goal_noise > 0:
@@ -196,10 +196,10 @@ class IBCCurriculumScheduler(GoalScheduler):
     def _pool(self, kind: str, rng: np.random.Generator) -> np.ndarray:
         if self.forward_pool is None or self.backward_pool is None:
             # official: before the first update both pools are rho_0 with noise of the success threshold's size
-            initial = self.task_goals.sample("initial", rng, self.n_targets).reshape(self.n_targets, -1)
-            noise = rng.normal(0.0, self.init_noise, (2, *initial.shape)) if self.init_noise > 0 else 0.0
-            self.forward_pool = np.asarray(initial + noise[0] if self.init_noise > 0 else initial, dtype=np.float64)
-            self.backward_pool = np.asarray(initial + noise[1] if self.init_noise > 0 else initial, dtype=np.float64)
+            initial = np.asarray(self.task_goals.sample("initial", rng, self.n_targets), dtype=np.float64)
+            initial = initial.reshape(self.n_targets, -1)
+            noise = rng.normal(0.0, self.init_noise, (2, *initial.shape)) if self.init_noise > 0 else np.zeros(2)
+            self.forward_pool, self.backward_pool = initial + noise[0], initial + noise[1]
         return self.backward_pool if kind == BACK else self.forward_pool
 
     # --- curriculum -------------------------------------------------------------------------------------------
