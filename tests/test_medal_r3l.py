@@ -24,6 +24,7 @@ from sb3_gcrl.reset_free_baselines import (
     MEDAL,
     R3L,
     RND,
+    BackwardRewardSAC,
     Demonstrations,
     Discriminator,
     ForwardBackwardSAC,
@@ -49,7 +50,7 @@ def wrap(env: gym.Env, segment_length: int = SEGMENT, hard_reset_every: int = 1_
     )
 
 
-def make_model(cls: type[ForwardBackwardSAC], n_envs: int = 1, seed: int = 0, **kwargs: Any) -> ForwardBackwardSAC:
+def make_model(cls: type[BackwardRewardSAC], n_envs: int = 1, seed: int = 0, **kwargs: Any) -> BackwardRewardSAC:
     env = make_vec_env(ENV_ID, n_envs=n_envs, seed=seed, wrapper_class=wrap)
     if cls is MEDAL:
         kwargs.setdefault("demos", ENV_ID)
@@ -113,7 +114,7 @@ def test_wrapper_alternates_phases_ends_forward_at_the_goal_and_restarts_forward
 @pytest.mark.parametrize("cls", [MEDAL, R3L])
 @pytest.mark.parametrize("n_envs", [1, 2])
 def test_each_policy_acts_in_its_phase_and_each_buffer_stores_its_policys_transitions(
-    cls: type[ForwardBackwardSAC], n_envs: int
+    cls: type[BackwardRewardSAC], n_envs: int
 ):
     kwargs = {"demos_to_buffers": False} if cls is MEDAL else {}
     model = make_model(cls, n_envs=n_envs, learning_starts=0, train_freq=1, gradient_steps=1, **kwargs)
@@ -183,7 +184,7 @@ def test_predict_is_the_forward_policy():
 # ------------------------------------------------------------------------------------------------ save / load
 @pytest.mark.parametrize("cls", [MEDAL, R3L])
 def test_save_load_restores_both_policies_the_reward_model_and_both_buffers(
-    cls: type[ForwardBackwardSAC], tmp_path: Path
+    cls: type[BackwardRewardSAC], tmp_path: Path
 ):
     model = make_model(cls, learning_starts=10)
     model.learn(80, callback=ResetFreeCallback())
@@ -369,7 +370,9 @@ def test_config_keys_are_constructor_arguments(config: Path):
 
     ((env_id, section),) = yaml.safe_load(config.read_text()).items()
     cls = MEDAL if config.name.startswith("medal_") else R3L
-    accepted = set(inspect.signature(cls).parameters) | set(inspect.signature(ForwardBackwardSAC).parameters)
+    accepted = set(inspect.signature(cls).parameters)
+    for base in (BackwardRewardSAC, ForwardBackwardSAC):  # the reward model's and SAC's arguments
+        accepted |= set(inspect.signature(base).parameters)
     assert set(section) - ZOO_KEYS <= accepted
     assert "sb3_gcrl.reset_free_baselines.ForwardBackwardWrapper" in section["env_wrapper"]
     if cls is MEDAL:

@@ -2,7 +2,9 @@
 
 * :class:`ForwardBackwardWrapper` (with :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` below it): the forward and
   backward phases of the reset-free stream.
-* :class:`ForwardBackwardSAC`: a forward SAC and a backward SAC acting and learning by phase, one buffer each.
+* :class:`ForwardBackwardSAC`: a forward SAC and a backward SAC acting and learning by phase, one buffer each (also
+  the base of :class:`~sb3_gcrl.ibc.IBC`).
+* :class:`BackwardRewardSAC`: a :class:`ForwardBackwardSAC` whose backward policy learns from a learned reward model.
 * :class:`MEDAL`: backward reward from a demonstration-state :class:`Discriminator`; demonstrations from
   :func:`load_demos` (shipped for some tasks, made by ``scripts/make_demos.py``).
 * :class:`R3L`: backward reward from :class:`RND` novelty.
@@ -10,6 +12,7 @@
 Docs: ``docs/reset_free_baselines.md``.
 """
 
+from sb3_gcrl.reset_free_baselines.backward_reward import BackwardRewardSAC
 from sb3_gcrl.reset_free_baselines.buffers import PhaseReplayBuffer
 from sb3_gcrl.reset_free_baselines.demos import Demonstrations, available_demos, load_demos
 from sb3_gcrl.reset_free_baselines.forward_backward import ForwardBackwardSAC
@@ -22,6 +25,7 @@ __all__ = [
     "MEDAL",
     "R3L",
     "RND",
+    "BackwardRewardSAC",
     "Demonstrations",
     "Discriminator",
     "ForwardBackwardSAC",

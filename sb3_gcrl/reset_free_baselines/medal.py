@@ -12,21 +12,21 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
-import torch as th
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.sac.policies import SACPolicy
 
+from sb3_gcrl.reset_free_baselines.backward_reward import BackwardRewardSAC
 from sb3_gcrl.reset_free_baselines.demos import Demonstrations, load_demos
-from sb3_gcrl.reset_free_baselines.forward_backward import ForwardBackwardSAC
 from sb3_gcrl.reset_free_baselines.reward_models import Discriminator, as_tensor
 
 
-class MEDAL(ForwardBackwardSAC):
+class MEDAL(BackwardRewardSAC):
     """MEDAL: forward SAC on the env's reward, backward SAC rewarded by a demonstration-state discriminator.
 
-    Other arguments: :class:`~sb3_gcrl.reset_free_baselines.ForwardBackwardSAC` (SB3's SAC arguments and the reward
-    model's schedule). Official defaults: SAC lr 3e-4, batch 256, tau 0.005, gamma 0.99, one gradient step per env
-    step for the policy that acts; discriminator MLP 128, lr 3e-4, batch 800, mixup, one step every 10 env steps.
+    Other arguments: :class:`~sb3_gcrl.reset_free_baselines.BackwardRewardSAC` (the reward model's schedule) and
+    :class:`~sb3_gcrl.reset_free_baselines.ForwardBackwardSAC` (SB3's SAC arguments). Official defaults: SAC lr
+    3e-4, batch 256, tau 0.005, gamma 0.99, one gradient step per env step for the policy that acts; discriminator MLP
+    128, lr 3e-4, batch 800, mixup, one step every 10 env steps.
 
     :param policy: SAC policy (``"MultiInputPolicy"``).
     :param env: goal env wrapped in ``ResetFreeWrapper`` and ``ForwardBackwardWrapper``.
@@ -34,7 +34,7 @@ class MEDAL(ForwardBackwardSAC):
         ``"GCRL/PointUMazeGoal-v0"``) or a :class:`~sb3_gcrl.reset_free_baselines.Demonstrations`.
     :param demos_to_buffers: put the demonstrations into both replay buffers (the official code does).
     :param reward_model_batch_size: discriminator batch, half demonstration states, half backward states (800).
-    :param kwargs: see :class:`~sb3_gcrl.reset_free_baselines.ForwardBackwardSAC`.
+    :param kwargs: see :class:`~sb3_gcrl.reset_free_baselines.BackwardRewardSAC`.
     """
 
     log_prefix: ClassVar[str] = "medal"
@@ -107,9 +107,6 @@ class MEDAL(ForwardBackwardSAC):
                     np.zeros(1, dtype=np.float32),
                     [{}],
                 )
-
-    def _reward_of_states(self, states: th.Tensor) -> th.Tensor:
-        return self.reward_model.reward(states)
 
     def _reward_model_step(self) -> float | None:
         half = self.reward_model_batch_size // 2

@@ -11,21 +11,20 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-import torch as th
 from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.sac.policies import SACPolicy
 
-from sb3_gcrl.reset_free_baselines.forward_backward import ForwardBackwardSAC
+from sb3_gcrl.reset_free_baselines.backward_reward import BackwardRewardSAC
 from sb3_gcrl.reset_free_baselines.reward_models import RND
 
 
-class R3L(ForwardBackwardSAC):
+class R3L(BackwardRewardSAC):
     """R3L: forward SAC on the env's reward, backward (perturbation) SAC rewarded by RND novelty.
 
     :param policy: SAC policy (``"MultiInputPolicy"``).
     :param env: goal env wrapped in ``ResetFreeWrapper`` and ``ForwardBackwardWrapper``.
     :param reward_model_batch_size: RND predictor batch (DI-engine: 64).
-    :param kwargs: see :class:`~sb3_gcrl.reset_free_baselines.ForwardBackwardSAC`; ``reward_model_kwargs`` go to
+    :param kwargs: see :class:`~sb3_gcrl.reset_free_baselines.BackwardRewardSAC`; ``reward_model_kwargs`` go to
         :class:`~sb3_gcrl.reset_free_baselines.reward_models.RND` (``hidden``, ``learning_rate``, ``obs_clip``).
     """
 
@@ -42,10 +41,12 @@ class R3L(ForwardBackwardSAC):
         **kwargs: Any,
     ) -> None:
         super().__init__(
-            policy, env, reward_model_batch_size=reward_model_batch_size, _init_setup_model=False, **kwargs
+            policy,
+            env,
+            reward_model_batch_size=reward_model_batch_size,
+            _init_setup_model=_init_setup_model,
+            **kwargs,
         )
-        if _init_setup_model:
-            self._setup_model()
 
     @property
     def rnd(self) -> RND:
@@ -54,9 +55,6 @@ class R3L(ForwardBackwardSAC):
 
     def _make_reward_model(self, state_dim: int) -> RND:
         return RND(state_dim, **self.reward_model_kwargs)
-
-    def _reward_of_states(self, states: th.Tensor) -> th.Tensor:
-        return self.reward_model.reward(states)
 
     def _reward_model_step(self) -> float | None:
         states = self._visited_states(self.reward_model_batch_size)

@@ -2,7 +2,7 @@
 
 Both are small ``nn.Module`` s with their own Adam optimizer (``.optimizer``), trained on states the backward policy
 visited, and saved/loaded with the model (their state dicts, running statistics included, are listed in
-:meth:`~sb3_gcrl.reset_free_baselines.ForwardBackwardSAC._get_torch_save_params`).
+:meth:`~sb3_gcrl.reset_free_baselines.BackwardRewardSAC._get_torch_save_params`).
 """
 
 from __future__ import annotations
