@@ -108,8 +108,8 @@ class _PhaseRouter:
                     buffer.add(_rows(obs, row), _rows(next_obs, row), action[row], reward[row], done[row], [infos[i]])  # type: ignore[arg-type]
             else:
                 raise RuntimeError(
-                    f"the {n_envs} envs are in different phases but the replay buffers keep one column per env: "
-                    "train on one env, or use one-column buffers (_single_column_buffers)"
+                    f"the {n_envs} envs are in different phases, but the replay buffers ({type(buffer).__name__}) "
+                    "keep one column per env, which a step must fill for all envs at once: train on one env (n_envs=1)"
                 )
 
 
