@@ -196,6 +196,24 @@ def test_reproduce_ch3_quick(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+def test_ch3_baselines_preset_runs_every_method(tmp_path: Path) -> None:
+    """IBC, MEDAL, R3L, world-model MoReFree, reset-free PEG and the SAC port train and evaluate side by side."""
+    from sb3_gcrl.compare.presets import run_preset
+
+    result = run_preset("ch3-baselines-quick", tmp_path, n_workers=1, progress=False)
+    assert not result.summary.failed, result.summary.failed
+    curves = _assert_comparison(tmp_path, 6)
+    assert set(curves["method"]) == {
+        "ibc",
+        "medal",
+        "r3l",
+        "morefree_world_model",
+        "peg_world_model",
+        "morefree_sac_port",
+    }
+
+
+@pytest.mark.slow
 def test_reproduce_ch4_quick(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert load_script("reproduce_ch4").main(["--quick", "--out", str(tmp_path)]) == 0
     curves = _assert_comparison(tmp_path, 2)

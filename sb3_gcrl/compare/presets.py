@@ -137,6 +137,39 @@ PRESETS: dict[str, Preset] = {
         thesis="Fig. 3.4 (PointUMaze panel: MoReFree >= reset-free PEG, model-based ahead of model-free) at 2% of "
         "the thesis's 1e6 steps; the world-model agents' CPU presets take about 1 h of one core per 50k steps",
     ),
+    "ch3-baselines": Preset(
+        description="Reset-free PointUMaze: IBC, MEDAL and R3L beside world-model MoReFree, reset-free PEG and the "
+        "MoReFree-SAC port, equal env steps",
+        methods=(
+            *(f"{algo}={algo}:{algo}_pointumaze" for algo in ("ibc", "medal", "r3l")),
+            "morefree_world_model=morefree:morefree_pointumaze_morefree_cpu",
+            "peg_world_model=morefree:morefree_pointumaze_peg_cpu",
+            "morefree_sac_port=sac:reset_free_pointumaze_morefree",
+        ),
+        envs=("GCRL/PointUMazeGoal-v0",),
+        seeds=(0, 1, 2),
+        n_timesteps=100_000,
+        eval_freq=10_000,
+        n_eval_episodes=10,
+        thesis="Fig. 3.4 (PointUMaze panel: MoReFree > reset-free PEG > IBC/MEDAL/R3L) at 10% of the thesis's 1e6 "
+        "steps",
+    ),
+    "ch3-baselines-tabletop": Preset(
+        description="Reset-free Tabletop: IBC, MEDAL and R3L beside world-model MoReFree, reset-free PEG and the "
+        "MoReFree-SAC port, equal env steps",
+        methods=(
+            *(f"{algo}={algo}:{algo}_tabletop" for algo in ("ibc", "medal", "r3l")),
+            "morefree_world_model=morefree:morefree_tabletop_morefree_cpu",
+            "peg_world_model=morefree:morefree_tabletop_peg_cpu",
+            "morefree_sac_port=sac:reset_free_tabletop_morefree",
+        ),
+        envs=("GCRL/Tabletop-v0",),
+        seeds=(0, 1, 2),
+        n_timesteps=100_000,
+        eval_freq=10_000,
+        n_eval_episodes=10,
+        thesis="Fig. 3.4 (Tabletop panel) at 5% of the thesis's 2e6 steps",
+    ),
     "ch4": Preset(
         description="CEC vs SAC on the sparse-reward navigation and MountainCar tasks of Ch. 4",
         methods=("cec", "sac"),
@@ -232,6 +265,7 @@ PRESETS.update(
         "ch3-quick": smoke_test(
             "ch3", 600, 300, methods=config_methods("sac", "reset_free_pointumaze_{name}", ("naive", "morefree"))
         ),
+        "ch3-baselines-quick": smoke_test("ch3-baselines", 600, 300),
         "ch4-quick": smoke_test("ch4", 400, 200, envs=("GCRL/PointUMaze-v0",)),
         "ch4-navigation-quick": smoke_test("ch4-navigation", 400, 200, envs=("GCRL/PointGoal-v0", "GCRL/CarGoal-v0")),
         "ch5-quick": smoke_test("ch5", 2_000, 500, n_eval_episodes=2),
