@@ -76,6 +76,29 @@ def config_methods(algo: str, pattern: str, names: tuple[str, ...]) -> tuple[str
     return tuple(f"{name}={algo}:{pattern.format(name=name)}" for name in names)
 
 
+def world_model_methods(task: str) -> tuple[str, ...]:
+    """World-model MoReFree, reset-free PEG (the same agent, alpha = 0; CPU presets) and the MoReFree-SAC port on
+    one reset-free task (``zoo_configs/morefree_<task>_{morefree,peg}_cpu.yml``, ``reset_free_<task>_morefree.yml``).
+
+    :param task: config name of the task, e.g. ``"pointumaze"``.
+    :return: the method specs, labelled so that the two MoReFree agents are never confused.
+    """
+    return (
+        f"morefree_world_model=morefree:morefree_{task}_morefree_cpu",
+        f"peg_world_model=morefree:morefree_{task}_peg_cpu",
+        f"morefree_sac_port=sac:reset_free_{task}_morefree",
+    )
+
+
+def baseline_methods(task: str) -> tuple[str, ...]:
+    """Ch. 3's reset-free baselines IBC, MEDAL and R3L on one task (``zoo_configs/<algo>_<task>.yml``).
+
+    :param task: config name of the task, e.g. ``"tabletop"``.
+    :return: the method specs, labelled by algorithm.
+    """
+    return tuple(f"{algo}={algo}:{algo}_{task}" for algo in ("ibc", "medal", "r3l"))
+
+
 #: Ch. 3 methods of Fig. 3.4 and the ablations of Sec. 3.5.3 (``zoo_configs/reset_free_pointumaze_<name>.yml``)
 CH3_METHODS = ("oracle", "naive", "goexplore", "morefree")
 CH3_ABLATIONS = ("wo_bf", "wo_relabel", "alpha1")
@@ -124,11 +147,7 @@ PRESETS: dict[str, Preset] = {
     "ch3-world-model": Preset(
         description="Reset-free PointUMaze: world-model MoReFree vs reset-free PEG (the same agent, alpha = 0) vs "
         "the MoReFree-SAC port, equal env steps, CPU presets",
-        methods=(
-            "morefree_world_model=morefree:morefree_pointumaze_morefree_cpu",
-            "peg_world_model=morefree:morefree_pointumaze_peg_cpu",
-            "morefree_sac_port=sac:reset_free_pointumaze_morefree",
-        ),
+        methods=world_model_methods("pointumaze"),
         envs=("GCRL/PointUMazeGoal-v0",),
         seeds=(0, 1, 2),
         n_timesteps=20_000,
@@ -140,12 +159,7 @@ PRESETS: dict[str, Preset] = {
     "ch3-baselines": Preset(
         description="Reset-free PointUMaze: IBC, MEDAL and R3L beside world-model MoReFree, reset-free PEG and the "
         "MoReFree-SAC port, equal env steps",
-        methods=(
-            *(f"{algo}={algo}:{algo}_pointumaze" for algo in ("ibc", "medal", "r3l")),
-            "morefree_world_model=morefree:morefree_pointumaze_morefree_cpu",
-            "peg_world_model=morefree:morefree_pointumaze_peg_cpu",
-            "morefree_sac_port=sac:reset_free_pointumaze_morefree",
-        ),
+        methods=(*baseline_methods("pointumaze"), *world_model_methods("pointumaze")),
         envs=("GCRL/PointUMazeGoal-v0",),
         seeds=(0, 1, 2),
         n_timesteps=100_000,
@@ -157,12 +171,7 @@ PRESETS: dict[str, Preset] = {
     "ch3-baselines-tabletop": Preset(
         description="Reset-free Tabletop: IBC, MEDAL and R3L beside world-model MoReFree, reset-free PEG and the "
         "MoReFree-SAC port, equal env steps",
-        methods=(
-            *(f"{algo}={algo}:{algo}_tabletop" for algo in ("ibc", "medal", "r3l")),
-            "morefree_world_model=morefree:morefree_tabletop_morefree_cpu",
-            "peg_world_model=morefree:morefree_tabletop_peg_cpu",
-            "morefree_sac_port=sac:reset_free_tabletop_morefree",
-        ),
+        methods=(*baseline_methods("tabletop"), *world_model_methods("tabletop")),
         envs=("GCRL/Tabletop-v0",),
         seeds=(0, 1, 2),
         n_timesteps=100_000,
