@@ -85,6 +85,8 @@ class IBC(ForwardBackwardSAC):
             raise TypeError("IBC trains goal-conditioned agents: the env must have a Dict goal observation")
         if self.action_space is not None and not isinstance(self.action_space, spaces.Box):
             raise TypeError("IBC's agents are SAC: Box actions only")
+        # whether the env commands IBC's segments (looked up once here, not at every step)
+        self._commands_segments = env.has_attr("goal_kind") and env.has_attr("training")
         schedulers = env.get_attr("scheduler") if env.num_envs > 1 and env.has_attr("scheduler") else []
         if any(isinstance(s, IBCCurriculumScheduler) for s in schedulers):
             raise ValueError(
@@ -98,7 +100,7 @@ class IBC(ForwardBackwardSAC):
         :return: bool array of shape ``(n_envs,)``.
         """
         assert self.env is not None
-        if not self.env.has_attr("goal_kind") or not self.env.has_attr("training"):
+        if not self._commands_segments:
             return np.zeros(self.env.num_envs, dtype=bool)
         kinds, training = self.env.get_attr("goal_kind"), self.env.get_attr("training")
         return np.array([kind == BACK and t for kind, t in zip(kinds, training)], dtype=bool)
