@@ -1,6 +1,8 @@
-"""Reproduce the reset-free PointUMaze comparison of thesis Ch. 3 (Fig. 3.4, Fig. 3.5) with model-free SAC+HER.
+"""Reproduce the reset-free comparisons of thesis Ch. 3 (Fig. 3.4, Fig. 3.5) on PointUMaze and Tabletop.
 
-The runs are the ``ch3`` / ``ch3-ablations`` comparison presets of ``sb3-gcrl compare``: each method is a plain
+The runs are the ``ch3`` / ``ch3-ablations`` / ``ch3-world-model`` / ``ch3-baselines`` / ``ch3-baselines-tabletop``
+comparison presets of ``sb3-gcrl compare`` (the model-free SAC+HER port of MoReFree and its ablations, the
+world-model agents, IBC, MEDAL and R3L): each method is a plain
 RL-Zoo run of ``zoo_configs/reset_free_pointumaze_<method>.yml`` (what ``sb3-gcrl train --algo sac -conf ...``
 runs), evaluated on RL-Zoo's eval env, which has the same ``env_wrapper`` and stays episodic (start in rho_0, goal
 from rho_g*, T_eval steps). This script only picks methods, budget and seeds, and adds the chapter's table:
@@ -30,10 +32,9 @@ import numpy as np
 import pandas as pd
 
 from sb3_gcrl.compare.cli import _hyperparam
-from sb3_gcrl.compare.presets import get_preset, preset_labels, run_preset, select_methods
+from sb3_gcrl.compare.presets import preset_labels, run_preset, select_methods
 
-PRESETS = ("ch3", "ch3-ablations", "ch3-world-model")
-ENV_ID = get_preset("ch3").envs[0]
+PRESETS = ("ch3", "ch3-ablations", "ch3-world-model", "ch3-baselines", "ch3-baselines-tabletop")
 
 
 def task_goals(env_id: str, n: int = 256, seed: int = 0) -> tuple[np.ndarray, float]:
@@ -63,17 +64,18 @@ def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
 
     curves = pd.read_csv(output / "curves.csv")
     specs = [RunSpec.from_dict(spec) for spec in json.loads((output / "comparison.json").read_text())["specs"]]
-    goals, radius = task_goals(ENV_ID)
+    task = {env_id: task_goals(env_id) for env_id in curves["env"].unique()}
     rows = []
-    for (method, seed), run in curves.groupby(["method", "seed"], sort=False):
+    for (env_id, method, seed), run in curves.groupby(["env", "method", "seed"], sort=False):
         success = run.sort_values("timesteps")["success_rate"].to_numpy()
-        spec = next(s for s in specs if s.method == method and s.seed == seed)
+        spec = next(s for s in specs if s.env_id == env_id and s.method == method and s.seed == seed)
         visited = output / "runs" / spec.relative_dir / VISITED_FILE
         share = np.nan
         if visited.is_file():
-            share = task_relevant_fraction(np.load(visited).astype(np.float64), goals, radius)
+            share = task_relevant_fraction(np.load(visited).astype(np.float64), *task[env_id])
         rows.append(
             {
+                "env": env_id,
                 "method": method,
                 "seed": int(seed),
                 "final_success": float(np.mean(success[-final_evals:])),
@@ -86,10 +88,10 @@ def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
 
 
 def print_table(table: pd.DataFrame) -> None:
-    for method, rows in table.groupby("method", sort=False):
+    for (env_id, method), rows in table.groupby(["env", "method"], sort=False):
         finals, shares = rows["final_success"], rows["task_relevant_pct"]
         print(
-            f"{method:>20}: final success mean {finals.mean():.2f} median {finals.median():.2f} "
+            f"{env_id} {method:>20}: final success mean {finals.mean():.2f} median {finals.median():.2f} "
             f"(seeds: {', '.join(f'{f:.2f}' for f in finals)}); mean over all evaluations "
             f"{rows['mean_success'].mean():.2f}; first success at {first_successes(rows['first_success_steps'])} "
             f"steps; task-relevant states median {shares.median():.1f}% ({', '.join(f'{s:.1f}' for s in shares)})"
@@ -109,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
         choices=PRESETS,
         default="ch3",
         help="budget, seeds and default methods (ch3-world-model: the world-model agent vs reset-free PEG vs the "
-        "MoReFree-SAC port); --methods may pick labels of any of these presets",
+        "MoReFree-SAC port; ch3-baselines[-tabletop]: IBC, MEDAL and R3L beside those three on PointUMaze "
+        "[Tabletop]); --methods may pick labels of any of these presets",
     )
     parser.add_argument("--methods", nargs="+", choices=labels, help="default: the preset's methods")
     parser.add_argument("--seeds", nargs="+", type=int, help="default: the preset's")
@@ -134,7 +137,9 @@ def main(argv: list[str] | None = None) -> int:
     failed = False
     if not args.analyse_only:
         preset = "ch3-quick" if args.quick else args.preset
-        methods = select_methods([preset] if args.quick else PRESETS, args.methods or preset_labels(preset))
+        # the chosen preset first: its spec wins where presets share a label (ibc on PointUMaze vs Tabletop)
+        pool = [preset] if args.quick else [preset, *PRESETS]
+        methods = select_methods(pool, args.methods or preset_labels(preset))
         result = run_preset(
             preset,
             args.out,

@@ -47,9 +47,14 @@ TASKS = {
 
 
 def print_table(curves: pd.DataFrame) -> None:
-    """Success at each checkpoint (mean; per seed), first step with success 1.0, median wall time per run."""
-    print("\n| task | algo | seeds | success at steps (mean; per seed) | first step with success 1.0 | wall s/run |")
-    print("|---|---|---|---|---|---|")
+    """Success at each checkpoint (mean; per seed), first step with success 1.0, evaluation episode length at the
+    last checkpoint (the tasks end at the goal, so shorter is a more direct path; the time limit when never reached),
+    median wall time per run."""
+    print(
+        "\n| task | algo | seeds | success at steps (mean; per seed) | first step with success 1.0 "
+        "| episode length at the end (mean; per seed) | wall s/run |"
+    )
+    print("|---|---|---|---|---|---|---|")
     names = {env_id: name for name, env_id in TASKS.items()}
     for (env_id, method), runs in curves.groupby(["env", "method"], sort=False):
         table = runs.pivot_table(index="seed", columns="timesteps", values="success_rate").dropna(axis=1)
@@ -60,9 +65,11 @@ def print_table(curves: pd.DataFrame) -> None:
         first = [next((int(step) for step, v in row.items() if v >= 1.0), None) for _, row in table.iterrows()]
         solved = sum(step is not None for step in first)
         wall = runs.groupby("seed")["wall_time_s"].max().median()
+        lengths = runs.pivot_table(index="seed", columns="timesteps", values="mean_length").iloc[:, -1]
         print(
             f"| {names.get(env_id, env_id)} | {method} | {len(table)} | {'<br>'.join(cells)} | "
-            f"{solved}/{len(table)} solved: {first} | {wall:.0f} |"
+            f"{solved}/{len(table)} solved: {first} | {lengths.mean():.0f} ({', '.join(f'{v:.0f}' for v in lengths)}) "
+            f"| {wall:.0f} |"
         )
 
 

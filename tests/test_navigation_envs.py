@@ -110,7 +110,7 @@ def test_goal_lidar_is_in_the_robot_frame(env_cls: type[SafetyGoalEnv]) -> None:
     assert int(np.argmax(obs[lidar])) == 0 and obs[lidar][0] == pytest.approx(2 / 3, abs=1e-3)
 
 
-def test_reset_noise_is_small_and_options_override() -> None:
+def test_positions_have_small_noise_and_the_heading_is_uniform() -> None:
     env = PointGoalEnv()
     starts, goals, headings = [], [], []
     for seed in range(20):
@@ -120,8 +120,11 @@ def test_reset_noise_is_small_and_options_override() -> None:
         headings.append(env.robot_yaw)
     assert np.abs(np.array(starts) - (-0.5, 0.0)).max() <= 0.1 + 1e-9
     assert np.abs(np.array(goals) - (0.5, 0.0)).max() <= 0.1 + 1e-9
-    assert np.abs(headings).max() <= 0.1 + 1e-9
+    # Safety-Gym's uniform heading: a fixed one would let a constant full push solve PointGoal without sensing
+    assert np.abs(headings).max() <= math.pi + 1e-9 and np.abs(headings).max() > 2.0
     assert np.unique(np.array(starts)[:, 0]).size == 20 and np.unique(headings).size == 20
+    env.reset(seed=0, options={"heading": 0.3})
+    assert env.robot_yaw == pytest.approx(0.3, abs=1e-6)
     with pytest.raises(ValueError, match="Unknown reset options"):
         env.reset(options={"goal_cell": (1, 1)})
 

@@ -139,6 +139,9 @@ def test_select_methods() -> None:
         "oracle=sac:reset_free_pointumaze_oracle",
     ]
     assert select_methods(["ch5"]) == list(get_preset("ch5").methods)
+    # a label two presets share (one per task) resolves to the first preset's spec
+    assert select_methods(["ch3-baselines-tabletop", "ch3-baselines"], ["ibc"]) == ["ibc=ibc:ibc_tabletop_cpu"]
+    assert select_methods(["ch3-baselines", "ch3-baselines-tabletop"], ["ibc"]) == ["ibc=ibc:ibc_pointumaze_cpu"]
     with pytest.raises(ValueError, match="choose from"):
         select_methods(["ch3"], ["morefre"])
     with pytest.raises(ValueError, match="Unknown preset"):

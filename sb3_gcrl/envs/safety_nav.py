@@ -35,15 +35,15 @@ does not name the bin count).
 
 Task: goal zone of radius ``goal_size = 0.3`` (Safety-Gym Goal); reaching it (planar distance from the
 robot body to the goal centre ``<= 0.3``) pays 1, sets ``info["is_success"]`` and terminates. Start: robot
-at (-0.5, 0) with yaw 0, goal at (0.5, 0), each position + U(-0.1, 0.1) per coordinate and the yaw
-+ U(-0.1, 0.1) rad (our "small randomness"). Both points lie inside Safety-Gym's Goal0 placement extents
+at (-0.5, 0), goal at (0.5, 0), each position + U(-0.1, 0.1) per coordinate (the thesis's "small randomness" of
+the locations), heading uniform in [-pi, pi) as in Safety-Gym. Both points lie inside Safety-Gym's Goal0 placement extents
 [-1, 1]^2 and respect its 0.4 / 0.305 keep-outs; their distance, 1.0, is about the mean robot-goal distance
 of Goal0's random layouts (0.97). Actions ``Box(-1, 1, (2,))`` are mapped linearly
 onto the actuators' control ranges; each env step runs 10 physics steps (Safety-Gym's frame skip, fixed).
 
 Departures from Safety-Gym (docs/envs.md): sparse reward only (Safety-Gym adds a dense distance-progress
 reward) and termination at the goal (Safety-Gym draws a new goal and continues); fixed nominal start and
-goal with small noise (Safety-Gym draws both anywhere in [-1, 1]^2 and the heading uniformly); 12 lidar bins.
+goal with small noise (Safety-Gym draws both anywhere in [-1, 1]^2); 12 lidar bins.
 """
 
 from __future__ import annotations
@@ -204,7 +204,8 @@ class SafetyGoalEnv(gym.Env):
     :param start_noise: half-width of the uniform noise added to each start coordinate.
     :param goal_noise: half-width of the uniform noise added to each goal coordinate.
     :param heading: nominal robot heading (rad, yaw of the robot's frame).
-    :param heading_noise: half-width of the uniform noise added to the heading.
+    :param heading_noise: half-width of the uniform noise added to the heading (default pi: uniform, as
+        Safety-Gym; with a nearly fixed heading the Point faces the goal and a constant full push solves the task).
     :param goal_size: radius of the goal zone (Safety-Gym: 0.3).
     :param lidar_num_bins: goal-lidar bins (12 fits the thesis's Table 4.2; Safety-Gym: 16).
     :param lidar_max_dist: distance at which the lidar reads 0 (Safety-Gym's suite: 3).
@@ -225,7 +226,7 @@ class SafetyGoalEnv(gym.Env):
         start_noise: float = 0.1,
         goal_noise: float = 0.1,
         heading: float = 0.0,
-        heading_noise: float = 0.1,
+        heading_noise: float = math.pi,
         goal_size: float = 0.3,
         lidar_num_bins: int = 12,
         lidar_max_dist: float = 3.0,
