@@ -36,10 +36,10 @@ does not name the bin count).
 Task: goal zone of radius ``goal_size = 0.3`` (Safety-Gym Goal); reaching it (planar distance from the
 robot body to the goal centre ``<= 0.3``) pays 1, sets ``info["is_success"]`` and terminates. Start: robot
 at (-0.5, 0), goal at (0.5, 0), each position + U(-0.1, 0.1) per coordinate (the thesis's "small randomness" of
-the locations), heading uniform in [-pi, pi) as in Safety-Gym. Both points lie inside Safety-Gym's Goal0 placement extents
-[-1, 1]^2 and respect its 0.4 / 0.305 keep-outs; their distance, 1.0, is about the mean robot-goal distance
-of Goal0's random layouts (0.97). Actions ``Box(-1, 1, (2,))`` are mapped linearly
-onto the actuators' control ranges; each env step runs 10 physics steps (Safety-Gym's frame skip, fixed).
+the locations), heading uniform in [-pi, pi) as in Safety-Gym. Both points lie inside Safety-Gym's Goal0
+placement extents [-1, 1]^2 and respect its 0.4 / 0.305 keep-outs; their distance, 1.0, is about the mean
+robot-goal distance of Goal0's random layouts (0.97). Actions ``Box(-1, 1, (2,))`` are mapped linearly onto the
+actuators' control ranges; each env step runs 10 physics steps (Safety-Gym's frame skip, fixed).
 
 Departures from Safety-Gym (docs/envs.md): sparse reward only (Safety-Gym adds a dense distance-progress
 reward) and termination at the goal (Safety-Gym draws a new goal and continues); fixed nominal start and
