@@ -119,6 +119,7 @@ def test_compute_reward_vectorised_and_consistent_with_step(envs, env_id):
     # Offsets of 0, 0.5 and 1.5 success radii in random directions: both outcomes occur.
     direction = rng.normal(size=desired.shape)
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    assert unwrapped.distance_threshold == pytest.approx(THRESHOLDS[env_id])  # the success radius, by its usual name
     radius = THRESHOLDS[env_id] * np.resize([0.0, 0.5, 1.5, 1.5], len(desired))[:, None]
     achieved = desired + radius * direction
     batch = unwrapped.compute_reward(achieved, desired, {})

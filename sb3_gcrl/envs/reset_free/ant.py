@@ -63,6 +63,8 @@ class AntArenaEnv(AntMazeEnv):
 
     EVAL_HORIZON: ClassVar[int] = EVAL_HORIZON
     HARD_RESET_EVERY: ClassVar[int] = HARD_RESET_EVERY
+    #: success radius in goal space (the name gymnasium-robotics' goal envs use)
+    distance_threshold: ClassVar[float] = SUCCESS_THRESHOLD
 
     def __init__(self, render_mode: str | None = None, reward_type: str = "sparse", **kwargs: Any) -> None:
         if reward_type not in ("sparse", "dense"):

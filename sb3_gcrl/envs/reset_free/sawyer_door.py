@@ -62,6 +62,8 @@ class SawyerDoorEnv(GoalEnv):
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array", "depth_array"], "render_fps": 80}
     EVAL_HORIZON: ClassVar[int] = EVAL_HORIZON
     HARD_RESET_EVERY: ClassVar[int] = HARD_RESET_EVERY
+    #: success radius in goal space (the name gymnasium-robotics' goal envs use)
+    distance_threshold: ClassVar[float] = SUCCESS_THRESHOLD
 
     def __init__(self, render_mode: str | None = None, width: int = 480, height: int = 480) -> None:
         try:

@@ -71,6 +71,8 @@ class TabletopEnv(GoalEnv):
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 20}
     EVAL_HORIZON: ClassVar[int] = EVAL_HORIZON
     HARD_RESET_EVERY: ClassVar[int] = HARD_RESET_EVERY
+    #: success radius in goal space (the name gymnasium-robotics' goal envs use)
+    distance_threshold: ClassVar[float] = SUCCESS_THRESHOLD
 
     def __init__(self, render_mode: str | None = None, render_size: int = 200) -> None:
         if render_mode not in (None, "rgb_array"):
