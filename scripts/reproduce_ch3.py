@@ -93,13 +93,17 @@ def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
 def print_table(table: pd.DataFrame) -> None:
     for (env_id, method), rows in table.groupby(["env", "method"], sort=False):
         finals, shares = rows["final_success"], rows["task_relevant_pct"]
+        share_text = (
+            "not recorded (sb3-gcrl compare keeps the visited goals of 2-D goal spaces only)"
+            if shares.isna().all()
+            else f"median {shares.median():.1f}% ({', '.join(f'{s:.1f}' for s in shares)})"
+        )
         print(
             f"{env_id} {method:>20}: final success mean {finals.mean():.2f} median {finals.median():.2f} "
             f"(seeds: {', '.join(f'{f:.2f}' for f in finals)}); mean over all evaluations "
             f"{rows['mean_success'].mean():.2f}; best evaluation return (steps in the goal zone) "
             f"{', '.join(f'{r:.1f}' for r in rows['max_mean_return'])}; first success at "
-            f"{first_successes(rows['first_success_steps'])} steps; task-relevant states median "
-            f"{shares.median():.1f}% ({', '.join(f'{s:.1f}' for s in shares)})"
+            f"{first_successes(rows['first_success_steps'])} steps; task-relevant states {share_text}"
         )
 
 
