@@ -94,7 +94,7 @@ def print_table(table: pd.DataFrame) -> None:
     for (env_id, method), rows in table.groupby(["env", "method"], sort=False):
         finals, shares = rows["final_success"], rows["task_relevant_pct"]
         share_text = (
-            "not recorded (sb3-gcrl compare keeps the visited goals of 2-D goal spaces only)"
+            "not recorded (no visited_goals.npy: an on-policy agent, or a run from before sb3-gcrl compare kept them)"
             if shares.isna().all()
             else f"median {shares.median():.1f}% ({', '.join(f'{s:.1f}' for s in shares)})"
         )
@@ -114,7 +114,7 @@ def first_successes(steps: pd.Series) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    labels = [label for name in PRESETS for label in preset_labels(name)]
+    labels = list(dict.fromkeys(label for name in PRESETS for label in preset_labels(name)))
     parser.add_argument(
         "--preset",
         choices=PRESETS,

@@ -26,7 +26,7 @@ from sb3_gcrl.compare.cli import EXIT_USAGE
 from sb3_gcrl.compare.cli import main as compare_main
 from sb3_gcrl.compare.methods import check_env_id
 from sb3_gcrl.compare.report import summarize, write_outputs
-from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run
+from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run, visited_goals
 from sb3_gcrl.compare.runner import plan_runs
 from sb3_gcrl.compare.storage import is_finished, read_run_record, write_run_result
 
@@ -457,6 +457,37 @@ def test_goal_env_runs_keep_visited_goals_and_get_visitation_heatmaps(tmp_path):
     write_outputs(output, summary, "goal env", "", 1.0)
     assert (output / "visitation_GCRL-PointUMazeGoal-v0.png").stat().st_size > 0
     assert "visitation_GCRL-PointUMazeGoal-v0.png" in (output / "report.md").read_text()
+
+
+def test_visited_goals_of_any_dimension_are_kept_but_only_2d_ones_get_heatmaps(tmp_path):
+    """4-D goals (Tabletop) are kept for the task-relevant share, in storage order; a heatmap needs 2-D."""
+    from types import SimpleNamespace
+
+    from stable_baselines3.common.buffers import DictReplayBuffer
+
+    goal = spaces.Box(-1.0, 1.0, (4,), np.float32)
+    observation_space = spaces.Dict({"observation": goal, "achieved_goal": goal, "desired_goal": goal})
+    buffer = DictReplayBuffer(10, observation_space, spaces.Box(-1.0, 1.0, (1,)), n_envs=2)
+    assert visited_goals(SimpleNamespace(replay_buffer=buffer)) is None  # empty
+    stored = np.arange(24, dtype=np.float32).reshape(3, 2, 4)  # 3 steps of 2 envs
+    for step in stored:
+        obs = {key: step for key in observation_space.spaces}
+        buffer.add(obs, obs, np.zeros((2, 1)), np.zeros(2), np.zeros(2), [{}, {}])
+    np.testing.assert_array_equal(visited_goals(SimpleNamespace(replay_buffer=buffer)), stored.reshape(6, 4))
+    assert visited_goals(SimpleNamespace(replay_buffer=buffer), max_points=2).tolist() == [
+        stored[0, 0].tolist(),
+        stored[2, 1].tolist(),
+    ]
+
+    spec = tiny_spec(tmp_path)
+    output = tmp_path / "out"
+    row = {"timesteps": 0, "num_timesteps": 0, "mean_return": -1.0, "std_return": 0.0, "mean_length": 200}
+    result = RunResult(spec, "finished", [row], wall_time_s=1.0, visited_goals=stored.reshape(6, 4))
+    write_run_result(output / "runs" / spec.relative_dir, result)
+    assert np.load(output / "runs" / spec.relative_dir / "visited_goals.npy").shape == (6, 4)
+    write_outputs(output, summarize(output, [spec]), "4-D goals", "", 1.0)
+    assert not list(output.glob("visitation_*.png"))
+    assert "visitation_" not in (output / "report.md").read_text()
 
 
 def tiny_spec(tmp_path: Path) -> RunSpec:

@@ -336,7 +336,10 @@ def _memory_choice_figures(output: Path, summary: Summary) -> str:
 
 
 def _visitation_figures(output: Path, summary: Summary, bins: int = 40) -> str:
-    """Fig. 3.5-style state-visitation heatmaps (achieved goals of the training data, all seeds of a method)."""
+    """Fig. 3.5-style state-visitation heatmaps (achieved goals of the training data, all seeds of a method).
+
+    Only for 2-D goal spaces; the visited goals of other envs serve the task-relevant share of ``reproduce_ch3``.
+    """
     lines = []
     for env_id in dict.fromkeys(env for env, _ in summary.run_dirs):
         points = {}
@@ -344,7 +347,7 @@ def _visitation_figures(output: Path, summary: Summary, bins: int = 40) -> str:
             files = [run_dir / VISITED_FILE for run_dir in run_dirs if (run_dir / VISITED_FILE).is_file()]
             if env == env_id and files:
                 points[method] = np.concatenate([np.load(file) for file in files])
-        if not points:
+        if not points or any(goals.shape[-1] != 2 for goals in points.values()):
             continue
         stacked = np.concatenate(list(points.values()))
         low, high = stacked.min(axis=0), stacked.max(axis=0)

@@ -99,9 +99,10 @@ class RunSpec:
 class RunResult:
     """Outcome of a run: ``status`` is ``"finished"`` or ``"failed"`` (then ``error`` holds the traceback).
 
-    ``visited_goals`` holds up to :data:`MAX_VISITED_POINTS` achieved goals of the training data (2-D goal spaces
-    of off-policy agents only, else None), for state-visitation heatmaps. ``all_goals`` holds the rows of the
-    run's :class:`~sb3_gcrl.post_exploration.AllGoalsEvalCallback` (None when its config has none).
+    ``visited_goals`` holds up to :data:`MAX_VISITED_POINTS` achieved goals of the training data (off-policy agents
+    of goal envs only, else None), for state-visitation heatmaps (2-D goal spaces) and task-relevant shares.
+    ``all_goals`` holds the rows of the run's :class:`~sb3_gcrl.post_exploration.AllGoalsEvalCallback` (None when
+    its config has none).
     """
 
     spec: RunSpec
@@ -114,31 +115,27 @@ class RunResult:
     all_goals: list[dict[str, float]] | None = None
 
 
-#: cap on the achieved goals kept per run for visitation heatmaps (evenly spaced over the replay buffer)
+#: cap on the achieved goals kept per run (evenly spaced over the replay buffer)
 MAX_VISITED_POINTS = 20_000
 
 
 def visited_goals(model: Any, max_points: int = MAX_VISITED_POINTS) -> np.ndarray | None:
-    """Achieved goals in an off-policy agent's replay buffer (what training visited), when the goal space is 2-D.
+    """Achieved goals in an off-policy agent's replay buffer (what training visited).
 
     :param model: a trained SB3 algorithm.
     :param max_points: keep at most this many, evenly spaced in storage order (i.e. over training time).
-    :return: float32 array ``(n, 2)``, or None (no replay buffer, no ``achieved_goal``, not 2-D, empty).
+    :return: float32 array ``(n, goal_dim)``, or None (no replay buffer, no ``achieved_goal``, empty).
     """
     buffer = getattr(model, "replay_buffer", None)
     if callable(getattr(buffer, "achieved_goals", None)):  # sequence buffers (MoReFree) list their goals
         goals = buffer.achieved_goals()
-        if goals.shape[-1] != 2:
-            return None
     else:
         observations = getattr(buffer, "observations", None)
         if not isinstance(observations, dict) or "achieved_goal" not in observations:
             return None
         stored = observations["achieved_goal"]
-        if stored.shape[-1] != 2:
-            return None
         n_rows = buffer.buffer_size if buffer.full else buffer.pos
-        goals = stored[:n_rows].reshape(-1, 2)
+        goals = stored[:n_rows].reshape(-1, stored.shape[-1])
     if len(goals) == 0:
         return None
     keep = np.unique(np.linspace(0, len(goals) - 1, min(len(goals), max_points)).astype(np.int64))

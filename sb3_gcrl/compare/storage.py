@@ -11,7 +11,7 @@
                                  whose config has an AllGoalsEvalCallback; see ALL_GOALS_COLUMNS)
         run.json                 spec, status, wall time, error; written last (its presence = run ended)
         train.log                stdout/stderr of the run
-        visited_goals.npy        achieved goals of the training data (2-D goal spaces of off-policy agents)
+        visited_goals.npy        achieved goals of the training data (off-policy agents of goal envs)
         zoo/                     RL-Zoo's own outputs (config.yml, args.yml, monitor.csv, model if saved)
       curves.csv scores.csv summary.csv curves.png report.md (+ memory_*.png, visitation_*.png,
       all_goals_curves.csv all_goals_scores.csv all_goals_summary.csv all_goals.png all_goals_entropy.png)
