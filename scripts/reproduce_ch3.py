@@ -8,8 +8,9 @@ runs), evaluated on RL-Zoo's eval env, which has the same ``env_wrapper`` and st
 from rho_g*, T_eval steps). This script only picks methods, budget and seeds, and adds the chapter's table:
 per method the final success (mean of the last ``--final-evals`` evaluations; per seed), the mean over all
 evaluations, and the task-relevant share of the replay buffer (Sec. 3.8: achieved goals within the env's success
-radius of a sample of rho_0 or rho_g*), computed from the achieved goals ``sb3-gcrl compare`` keeps per run
-(``visited_goals.npy``, up to 20,000 evenly spaced over training). The comparison folder holds the report, the
+radius of a sample of rho_0 or rho_g*) and how close the training data came to rho_g* (the nearest visited goal's
+distance to a rho_g* sample, beside the success radius), both computed from the achieved goals ``sb3-gcrl compare``
+keeps per run (``visited_goals.npy``, up to 20,000 evenly spaced over training). The comparison folder holds the report, the
 curves and the Fig. 3.5-style heatmaps (``visitation_GCRL-PointUMazeGoal-v0.png``); the table is also written to
 ``ch3_summary.csv``.
 
@@ -37,16 +38,17 @@ from sb3_gcrl.compare.presets import preset_labels, run_preset, select_methods
 PRESETS = ("ch3", "ch3-ablations", "ch3-world-model", "ch3-baselines", "ch3-baselines-tabletop")
 
 
-def task_goals(env_id: str, n: int = 256, seed: int = 0) -> tuple[np.ndarray, float]:
-    """Samples of rho_0 and rho_g* that the env declares, and its success radius (the task-relevance radius)."""
+def task_goals(env_id: str, n: int = 256, seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
+    """Samples of rho_0 and of rho_g* that the env declares, and its success radius (the task-relevance radius)."""
     import gymnasium as gym
 
     import sb3_gcrl  # noqa: F401  (registers the env)
 
     env = gym.make(env_id).unwrapped
     rng = np.random.default_rng(seed)
-    goals = [env.sample_initial_goal(rng) for _ in range(n)] + [env.sample_evaluation_goal(rng) for _ in range(n)]
-    return np.asarray(goals, dtype=np.float64), float(env.distance_threshold)
+    initial = np.asarray([env.sample_initial_goal(rng) for _ in range(n)], dtype=np.float64)
+    evaluation = np.asarray([env.sample_evaluation_goal(rng) for _ in range(n)], dtype=np.float64)
+    return initial, evaluation, float(env.distance_threshold)
 
 
 def first_success(run: pd.DataFrame) -> float:
@@ -57,8 +59,8 @@ def first_success(run: pd.DataFrame) -> float:
 
 def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
     """One row per finished run: final success, mean success over all evaluations, best evaluation return, env steps
-    of the first evaluation with a success, task-relevant share."""
-    from sb3_gcrl.callbacks.visitation import task_relevant_fraction
+    of the first evaluation with a success, task-relevant share, closest visited goal to rho_g*."""
+    from sb3_gcrl.callbacks.visitation import nearest_distances, task_relevant_fraction
     from sb3_gcrl.compare.run import RunSpec
     from sb3_gcrl.compare.storage import VISITED_FILE
 
@@ -70,9 +72,12 @@ def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
         success = run.sort_values("timesteps")["success_rate"].to_numpy()
         spec = next(s for s in specs if s.env_id == env_id and s.method == method and s.seed == seed)
         visited = output / "runs" / spec.relative_dir / VISITED_FILE
-        share = np.nan
+        share = closest = np.nan
         if visited.is_file():
-            share = task_relevant_fraction(np.load(visited).astype(np.float64), *task[env_id])
+            goals = np.load(visited).astype(np.float64)
+            initial, evaluation, radius = task[env_id]
+            share = task_relevant_fraction(goals, np.concatenate([initial, evaluation]), radius)
+            closest = float(nearest_distances(goals, evaluation).min())
         rows.append(
             {
                 "env": env_id,
@@ -85,6 +90,9 @@ def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
                 "max_mean_return": float(run["mean_return"].max()),
                 "first_success_steps": first_success(run),
                 "task_relevant_pct": 100 * share,
+                # how near training came to the evaluation goals (compare with the success radius)
+                "closest_to_goal": closest,
+                "success_radius": task[env_id][2],
             }
         )
     return pd.DataFrame(rows)
@@ -92,7 +100,7 @@ def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
 
 def print_table(table: pd.DataFrame) -> None:
     for (env_id, method), rows in table.groupby(["env", "method"], sort=False):
-        finals, shares = rows["final_success"], rows["task_relevant_pct"]
+        finals, shares, closest = rows["final_success"], rows["task_relevant_pct"], rows["closest_to_goal"]
         share_text = (
             "not recorded (no visited_goals.npy: an on-policy agent, or a run from before sb3-gcrl compare kept them)"
             if shares.isna().all()
@@ -104,6 +112,12 @@ def print_table(table: pd.DataFrame) -> None:
             f"{rows['mean_success'].mean():.2f}; best evaluation return (steps in the goal zone) "
             f"{', '.join(f'{r:.1f}' for r in rows['max_mean_return'])}; first success at "
             f"{first_successes(rows['first_success_steps'])} steps; task-relevant states {share_text}"
+            + (
+                ""
+                if closest.isna().all()
+                else f"; closest visited goal to rho_g* {', '.join(f'{c:.2f}' for c in closest)} "
+                f"(success radius {rows['success_radius'].iloc[0]:g})"
+            )
         )
 
 

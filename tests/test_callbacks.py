@@ -15,6 +15,7 @@ import sb3_gcrl  # noqa: F401 (registers GCRL/ envs)
 from sb3_gcrl.callbacks import (
     ResetFreeCallback,
     VisitationCallback,
+    nearest_distances,
     task_relevant_fraction,
     visitation_histogram,
 )
@@ -108,6 +109,7 @@ def test_task_relevant_fraction_and_histogram_by_hand() -> None:
     assert task_relevant_fraction(achieved, task, radius=0.25) == 0.5  # (0,0) and (1,1)
     assert task_relevant_fraction(achieved, task, radius=0.35, chunk=1) == 0.75
     assert task_relevant_fraction(np.zeros((0, 2)), task, radius=1.0) == 0.0
+    np.testing.assert_allclose(nearest_distances(achieved, task, chunk=3), [0.0, 0.3, 0.2, np.hypot(4.0, 3.8)])
     hist, xedges, yedges = visitation_histogram(achieved, [-1, -1], [2, 2], n_bins=3)
     assert hist.sum() == 3  # (5, 5) is outside the plotted range
     assert hist[1, 1] == 2 and hist[2, 2] == 1

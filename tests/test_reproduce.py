@@ -195,6 +195,7 @@ def test_reproduce_ch3_quick(tmp_path: Path) -> None:
     table = pd.read_csv(tmp_path / "ch3_summary.csv")
     assert np.isfinite(table[["final_success", "mean_success", "task_relevant_pct"]].to_numpy()).all()
     assert ((table["task_relevant_pct"] >= 0) & (table["task_relevant_pct"] <= 100)).all()
+    assert (table["closest_to_goal"] >= 0).all() and (table["success_radius"] == 0.45).all()
     assert (tmp_path / "visitation_GCRL-PointUMazeGoal-v0.png").is_file()
 
 

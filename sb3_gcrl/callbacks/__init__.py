@@ -3,6 +3,7 @@
 from sb3_gcrl.callbacks.reset_free import ResetFreeCallback
 from sb3_gcrl.callbacks.visitation import (
     VisitationCallback,
+    nearest_distances,
     task_relevant_fraction,
     visitation_histogram,
 )
@@ -10,6 +11,7 @@ from sb3_gcrl.callbacks.visitation import (
 __all__ = [
     "ResetFreeCallback",
     "VisitationCallback",
+    "nearest_distances",
     "task_relevant_fraction",
     "visitation_histogram",
 ]

@@ -15,6 +15,21 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 
+def nearest_distances(achieved: np.ndarray, targets: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """Euclidean distance from each ``achieved`` goal to its nearest ``targets`` row.
+
+    :param achieved: visited goals ``(n, dim)``.
+    :param targets: goals to measure against, e.g. samples of rho_0 and rho_g* ``(m, dim)``.
+    :param chunk: rows per distance block (bounds memory at ``chunk * m`` floats).
+    :return: ``(n,)`` distances.
+    """
+    nearest = np.empty(len(achieved), dtype=np.float64)
+    for start in range(0, len(achieved), chunk):
+        block = achieved[start : start + chunk, None, :] - targets[None, :, :]
+        nearest[start : start + chunk] = np.einsum("ijk,ijk->ij", block, block).min(axis=1)
+    return np.sqrt(nearest)
+
+
 def task_relevant_fraction(achieved: np.ndarray, task_goals: np.ndarray, radius: float, chunk: int = 4096) -> float:
     """Fraction of ``achieved`` goals within ``radius`` of at least one task-relevant goal.
 
@@ -26,11 +41,7 @@ def task_relevant_fraction(achieved: np.ndarray, task_goals: np.ndarray, radius:
     """
     if len(achieved) == 0:
         return 0.0
-    hits = 0
-    for start in range(0, len(achieved), chunk):
-        block = achieved[start : start + chunk, None, :] - task_goals[None, :, :]
-        hits += int(np.any(np.einsum("ijk,ijk->ij", block, block) <= radius**2, axis=1).sum())
-    return hits / len(achieved)
+    return float(np.mean(nearest_distances(achieved, task_goals, chunk) <= radius))
 
 
 def visitation_histogram(
