@@ -459,8 +459,8 @@ def test_goal_env_runs_keep_visited_goals_and_get_visitation_heatmaps(tmp_path):
     assert "visitation_GCRL-PointUMazeGoal-v0.png" in (output / "report.md").read_text()
 
 
-def test_visited_goals_of_any_dimension_are_kept_but_only_2d_ones_get_heatmaps(tmp_path):
-    """4-D goals (Tabletop) are kept for the task-relevant share, in storage order; a heatmap needs 2-D."""
+def test_visited_goals_of_any_dimension_are_kept_and_heatmaps_show_two_goal_dimensions(tmp_path, monkeypatch):
+    """4-D goals are kept (task-relevant share), in storage order; a heatmap needs two goal dimensions to show."""
     from types import SimpleNamespace
 
     from stable_baselines3.common.buffers import DictReplayBuffer
@@ -488,6 +488,19 @@ def test_visited_goals_of_any_dimension_are_kept_but_only_2d_ones_get_heatmaps(t
     write_outputs(output, summarize(output, [spec]), "4-D goals", "", 1.0)
     assert not list(output.glob("visitation_*.png"))
     assert "visitation_" not in (output / "report.md").read_text()
+
+    # Tabletop's goal is (fist xy, mug xy): its heatmap shows the mug (dimensions 2, 3), as the thesis's Fig. 3.9
+    from dataclasses import replace
+
+    import sb3_gcrl.compare.report as report
+
+    tabletop = replace(spec, env_id="GCRL/Tabletop-v0")
+    write_run_result(output / "runs" / tabletop.relative_dir, replace(result, spec=tabletop))
+    drawn = []
+    monkeypatch.setattr(report, "visitation_counts", lambda goals, *args: drawn.append(goals) or np.ones((2, 2)))
+    write_outputs(output, summarize(output, [tabletop]), "Tabletop", "", 1.0)
+    assert (output / "visitation_GCRL-Tabletop-v0.png").is_file()
+    np.testing.assert_array_equal(drawn[0], stored.reshape(6, 4)[:, 2:])
 
 
 def tiny_spec(tmp_path: Path) -> RunSpec:

@@ -506,6 +506,7 @@ def test_goal_box_contains_task_goals_and_visited_goals(envs, env_id):
     env = get_env(envs, env_id)
     low, high = np.asarray(task.goal_low), np.asarray(task.goal_high)
     assert low.shape == high.shape == env.observation_space["achieved_goal"].shape
+    assert len(set(task.visitation_dims)) == 2 and max(task.visitation_dims) < len(low)  # the heatmap's axes
     for sampler in (env.unwrapped.sample_initial_goal, env.unwrapped.sample_evaluation_goal):
         goals = _samples(sampler, 100)
         assert np.all(goals >= low) and np.all(goals <= high)

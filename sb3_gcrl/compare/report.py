@@ -338,8 +338,12 @@ def _memory_choice_figures(output: Path, summary: Summary) -> str:
 def _visitation_figures(output: Path, summary: Summary, bins: int = 40) -> str:
     """Fig. 3.5-style state-visitation heatmaps (achieved goals of the training data, all seeds of a method).
 
-    Only for 2-D goal spaces; the visited goals of other envs serve the task-relevant share of ``reproduce_ch3``.
+    Two goal dimensions are drawn: those the reset-free suite names for the env (the mug's XY on Tabletop, as Fig.
+    3.9), else a 2-D goal space's; other envs get none (their visited goals still serve ``reproduce_ch3``'s
+    task-relevant share).
     """
+    from sb3_gcrl.envs.reset_free import RESET_FREE_TASKS
+
     lines = []
     for env_id in dict.fromkeys(env for env, _ in summary.run_dirs):
         points = {}
@@ -347,8 +351,12 @@ def _visitation_figures(output: Path, summary: Summary, bins: int = 40) -> str:
             files = [run_dir / VISITED_FILE for run_dir in run_dirs if (run_dir / VISITED_FILE).is_file()]
             if env == env_id and files:
                 points[method] = np.concatenate([np.load(file) for file in files])
-        if not points or any(goals.shape[-1] != 2 for goals in points.values()):
+        task = RESET_FREE_TASKS.get(env_id)
+        dims = task.visitation_dims if task is not None else (0, 1)
+        goal_dims = {goals.shape[-1] for goals in points.values()}
+        if not points or len(goal_dims) > 1 or (task is None and goal_dims != {2}) or max(dims) >= min(goal_dims):
             continue
+        points = {method: goals[:, dims] for method, goals in points.items()}
         stacked = np.concatenate(list(points.values()))
         low, high = stacked.min(axis=0), stacked.max(axis=0)
         margin = 0.02 * np.maximum(high - low, 1e-6)
@@ -359,7 +367,8 @@ def _visitation_figures(output: Path, summary: Summary, bins: int = 40) -> str:
             title = f"{method} (entropy {visitation_entropy(counts):.2f})"
             plot_visitation_heatmap(counts, bounds, ax=ax, title=title)
         name = f"visitation_{EnvironmentName(env_id)}.png"
-        figure.suptitle(f"{env_id}: achieved goals in the replay buffer, all seeds")
+        shown = "" if min(goal_dims) == 2 else f" (goal dimensions {dims[0]}, {dims[1]})"
+        figure.suptitle(f"{env_id}: achieved goals{shown} in the replay buffer, all seeds")
         figure.savefig(output / name, dpi=150, bbox_inches="tight")
         lines.append(f"![state visitation on {env_id}]({name})")
     if not lines:

@@ -45,6 +45,8 @@ class ResetFreeTask:
         the novelty scheduler's ``goal_low``, and for visitation heatmaps).
     :param goal_high: upper corner of that box.
     :param registered_here: False for PointUMaze, which :mod:`sb3_gcrl.envs` registers (with its own horizon).
+    :param visitation_dims: the two goal dimensions a state-visitation heatmap shows, as the thesis's do (Figs.
+        3.9-3.12): the mug's XY on Tabletop, the block's XZ on Pick&Place (hard), else the first two.
     """
 
     env_id: str
@@ -55,6 +57,7 @@ class ResetFreeTask:
     goal_low: tuple[float, ...]
     goal_high: tuple[float, ...]
     registered_here: bool = True
+    visitation_dims: tuple[int, int] = (0, 1)
 
 
 _FETCH = "sb3_gcrl.envs.reset_free.fetch"
@@ -97,6 +100,7 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             "thesis Pick&Place (hard)",
             fetch.HARD_GOAL_LOW,
             fetch.HARD_GOAL_HIGH,
+            visitation_dims=(0, 2),  # Fig. 3.10: the block in the air
         ),
         ResetFreeTask(
             "GCRL/AntArena-v0",
@@ -115,6 +119,7 @@ RESET_FREE_TASKS: dict[str, ResetFreeTask] = {
             "EARL Tabletop",
             tabletop.GOAL_LOW,
             tabletop.GOAL_HIGH,
+            visitation_dims=(2, 3),  # Fig. 3.9: the mug (the goal is fist xy, mug xy)
         ),
         ResetFreeTask(
             "GCRL/SawyerDoor-v0",
