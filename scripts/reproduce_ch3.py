@@ -42,13 +42,12 @@ def task_goals(env_id: str, n: int = 256, seed: int = 0) -> tuple[np.ndarray, np
     """Samples of rho_0 and of rho_g* that the env declares, and its success radius (the task-relevance radius)."""
     import gymnasium as gym
 
-    import sb3_gcrl  # noqa: F401  (registers the env)
+    from sb3_gcrl.goals import declared_task_goals
 
-    env = gym.make(env_id).unwrapped
-    rng = np.random.default_rng(seed)
-    initial = np.asarray([env.sample_initial_goal(rng) for _ in range(n)], dtype=np.float64)
-    evaluation = np.asarray([env.sample_evaluation_goal(rng) for _ in range(n)], dtype=np.float64)
-    return initial, evaluation, float(env.distance_threshold)
+    env = gym.make(env_id)
+    initial, evaluation = declared_task_goals(env, n, seed)
+    env.close()
+    return initial, evaluation, float(env.unwrapped.distance_threshold)
 
 
 def first_success(run: pd.DataFrame) -> float:

@@ -13,6 +13,7 @@ from sb3_gcrl.goals import (
     EnvDefaultScheduler,
     NoveltyScheduler,
     TaskRelevantGoals,
+    declared_task_goals,
     declares_task_goals,
     make_scheduler,
 )
@@ -87,6 +88,12 @@ def test_declared_task_goals_come_from_the_env() -> None:
     rng = np.random.default_rng(0)
     np.testing.assert_allclose(goals.sample("initial", rng, 50), np.tile([-1.0, -1.0], (50, 1)), atol=0.1)
     np.testing.assert_allclose(goals.sample("evaluation", rng, 50), np.tile([-1.0, 1.0], (50, 1)), atol=0.1)
+    initial, evaluation = declared_task_goals(env, 20, seed=3)
+    assert initial.shape == evaluation.shape == (20, 2)
+    np.testing.assert_allclose(evaluation, np.tile([-1.0, 1.0], (20, 1)), atol=0.1)
+    np.testing.assert_array_equal(declared_task_goals(env, 20, seed=3)[1], evaluation)  # seeded
+    with pytest.raises(ValueError, match="does not declare sample_initial_goal"):
+        declared_task_goals(gym.make("PointMaze_UMaze-v3"), 5)
 
 
 def test_task_goals_are_learned_from_resets_of_any_goal_env() -> None:

@@ -340,7 +340,8 @@ def _visitation_figures(output: Path, summary: Summary, bins: int = 40) -> str:
 
     Two goal dimensions are drawn: those the reset-free suite names for the env (the mug's XY on Tabletop, as Fig.
     3.9), else a 2-D goal space's; other envs get none (their visited goals still serve ``reproduce_ch3``'s
-    task-relevant share).
+    task-relevant share). Suite envs are drawn over their whole goal box, with samples of rho_0 and rho_g* as white
+    dots (the thesis's circles).
     """
     from sb3_gcrl.envs.reset_free import RESET_FREE_TASKS
 
@@ -357,15 +358,19 @@ def _visitation_figures(output: Path, summary: Summary, bins: int = 40) -> str:
         if not points or len(goal_dims) > 1 or (task is None and goal_dims != {2}) or max(dims) >= min(goal_dims):
             continue
         points = {method: goals[:, dims] for method, goals in points.items()}
-        stacked = np.concatenate(list(points.values()))
-        low, high = stacked.min(axis=0), stacked.max(axis=0)
+        if task is not None:  # the task's goal box: the whole table / maze, whatever the agents visited
+            low, high = np.asarray(task.goal_low)[list(dims)], np.asarray(task.goal_high)[list(dims)]
+        else:
+            stacked = np.concatenate(list(points.values()))
+            low, high = stacked.min(axis=0), stacked.max(axis=0)
         margin = 0.02 * np.maximum(high - low, 1e-6)
         bounds = tuple(zip(low - margin, high + margin))  # shared by the panels, so they compare
+        markers = None if task is None else _task_goal_samples(env_id)[:, dims]
         figure = Figure(figsize=(4.2 * len(points), 3.6), layout="constrained")
         for ax, (method, goals) in zip(figure.subplots(1, len(points), squeeze=False)[0], points.items()):
             counts = visitation_counts(goals, bins, bounds)
             title = f"{method} (entropy {visitation_entropy(counts):.2f})"
-            plot_visitation_heatmap(counts, bounds, ax=ax, title=title)
+            plot_visitation_heatmap(counts, bounds, ax=ax, title=title, points=markers)
         name = f"visitation_{EnvironmentName(env_id)}.png"
         shown = "" if min(goal_dims) == 2 else f" (goal dimensions {dims[0]}, {dims[1]})"
         figure.suptitle(f"{env_id}: achieved goals{shown} in the replay buffer, all seeds")
@@ -375,6 +380,18 @@ def _visitation_figures(output: Path, summary: Summary, bins: int = 40) -> str:
         return ""
     header = "### State visitation (Fig. 3.5 style; entropy of Eq. 6.7 over the 40 x 40 bins)"
     return "\n".join(["", header, "", *lines]) + "\n"
+
+
+def _task_goal_samples(env_id: str, n: int = 32) -> np.ndarray:
+    """``n`` samples each of rho_0 and rho_g* that a reset-free suite env declares, stacked ``(2 n, goal_dim)``."""
+    import gymnasium as gym
+
+    from sb3_gcrl.goals import declared_task_goals
+
+    env = gym.make(env_id)
+    samples = np.concatenate(declared_task_goals(env, n))
+    env.close()
+    return samples
 
 
 def _improvement_section(summary: Summary) -> list[str]:

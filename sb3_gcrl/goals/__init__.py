@@ -11,7 +11,7 @@ from sb3_gcrl.goals.schedulers import (
     UniformVisitedScheduler,
     make_scheduler,
 )
-from sb3_gcrl.goals.task_goals import TaskRelevantGoals, declares_task_goals
+from sb3_gcrl.goals.task_goals import TaskRelevantGoals, declared_task_goals, declares_task_goals
 
 __all__ = [
     "SCHEDULERS",
@@ -23,6 +23,7 @@ __all__ = [
     "NoveltyScheduler",
     "TaskRelevantGoals",
     "UniformVisitedScheduler",
+    "declared_task_goals",
     "declares_task_goals",
     "make_scheduler",
 ]

@@ -107,3 +107,22 @@ class TaskRelevantGoals:
             )
         rows = rng.integers(0, min(self._n_recorded, self.capacity), size=n)
         return (self._initial if kind == "initial" else self._evaluation)[rows].copy()
+
+
+def declared_task_goals(env: gym.Env, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` samples each of rho_0 and rho_g* from the samplers an env declares (for analysis and plots).
+
+    :param env: a goal env whose unwrapped env declares ``sample_initial_goal`` and ``sample_evaluation_goal``.
+    :param n: samples per distribution.
+    :param seed: seed of the generator passed to the samplers.
+    :return: ``(initial, evaluation)``, each ``(n, goal_dim)`` flat goals.
+    :raises ValueError: the env declares no samplers.
+    """
+    if not declares_task_goals(env):
+        raise ValueError(
+            f"{env.unwrapped} does not declare {INITIAL_GOAL_METHOD} / {EVALUATION_GOAL_METHOD} (rho_0, rho_g*); "
+            "add them to the env, or use TaskRelevantGoals to learn them from its resets"
+        )
+    goals = TaskRelevantGoals(env, int(np.prod(env.observation_space["achieved_goal"].shape)))
+    rng = np.random.default_rng(seed)
+    return goals.sample("initial", rng, n), goals.sample("evaluation", rng, n)
