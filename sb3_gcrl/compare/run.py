@@ -100,7 +100,7 @@ class RunResult:
     """Outcome of a run: ``status`` is ``"finished"`` or ``"failed"`` (then ``error`` holds the traceback).
 
     ``visited_goals`` holds up to :data:`MAX_VISITED_POINTS` achieved goals of the training data (off-policy agents
-    of goal envs only, else None), for state-visitation heatmaps (2-D goal spaces) and task-relevant shares.
+    of goal envs only, else None), for state-visitation heatmaps and task-relevant shares.
     ``all_goals`` holds the rows of the run's :class:`~sb3_gcrl.post_exploration.AllGoalsEvalCallback` (None when
     its config has none).
     """
