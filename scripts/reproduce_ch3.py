@@ -11,8 +11,8 @@ evaluations, and the task-relevant share of the replay buffer (Sec. 3.8: achieve
 radius of a sample of rho_0 or rho_g*) and how close the training data came to rho_g* (the nearest visited goal's
 distance to a rho_g* sample, beside the success radius), both computed from the achieved goals ``sb3-gcrl compare``
 keeps per run (``visited_goals.npy``, up to 20,000 evenly spaced over training). The comparison folder holds the
-report, the curves and the Fig. 3.5-style heatmaps (``visitation_GCRL-PointUMazeGoal-v0.png``, 2-D goal spaces); the
-table is also written to ``ch3_summary.csv``.
+report, the curves and the Fig. 3.5-style heatmaps (``visitation_<env>.png``; Tabletop's shows the mug, as Fig. 3.9);
+the table is also written to ``ch3_summary.csv``.
 
 Example (what docs/results.md quotes)::
 
