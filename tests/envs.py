@@ -59,11 +59,10 @@ class ChainEnv(gym.Env):
 MOREFREE_TINY_NET: dict[str, Any] = {
     "deter": 16,
     "stoch": 4,
-    "classes": 4,
-    "hidden": 16,
-    "embed_dim": 16,
+    "rssm_hidden": 16,
+    "model_hidden": 16,
     "model_layers": 1,
-    "actor_hidden": 16,
-    "actor_layers": 1,
+    "head_hidden": 16,
+    "head_layers": 1,
     "ensemble_size": 2,
 }

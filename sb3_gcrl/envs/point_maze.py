@@ -198,6 +198,56 @@ class PointMazeTaskEnv(gym.Env):
         """An evaluation goal (rho_g*): goal-cell centre + U(-goal_noise, goal_noise)^2."""
         return self._goal_xy + rng.uniform(-self.goal_noise, self.goal_noise, size=2)
 
+    def path_distance(self, achieved: np.ndarray, goal: np.ndarray, resolution: float = 0.05) -> np.ndarray:
+        """Length of the shortest path through the maze's free cells from each point of ``achieved`` to ``goal``.
+
+        The ground truth of learned distances (the world-model agent's diagnostics): Dijkstra over a grid of
+        ``resolution`` spacing laid over the free cells (8-neighbour moves), plus each point's straight offset to
+        its nearest grid node. Walls are treated as thin (the ball's radius is ignored).
+
+        :param achieved: points ``(N, 2)`` (or one ``(2,)``) in the maze.
+        :param goal: one point ``(2,)``.
+        :param resolution: grid spacing.
+        :return: distances ``(N,)`` (``inf`` for points outside every free cell).
+        """
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import dijkstra
+
+        maze_map = np.asarray(self.maze.maze_map)
+        rows, cols = maze_map.shape
+        n_x, n_y = int(round(cols / resolution)), int(round(rows / resolution))
+        xs = (np.arange(n_x) + 0.5) * resolution - cols / 2
+        ys = rows / 2 - (np.arange(n_y) + 0.5) * resolution
+        free = maze_map[(np.arange(n_y) * resolution).astype(int)][:, (np.arange(n_x) * resolution).astype(int)] == 0
+        index = -np.ones((n_y, n_x), dtype=np.int64)
+        index[free] = np.arange(int(free.sum()))
+        edges, weights = [], []
+        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            a = index[max(0, -dy) : n_y - max(0, dy), max(0, -dx) : n_x - max(0, dx)]
+            b = index[max(0, dy) : max(0, dy) + a.shape[0], max(0, dx) : max(0, dx) + a.shape[1]]
+            ok = (a >= 0) & (b >= 0)
+            edges.append(np.stack([a[ok], b[ok]]))
+            weights.append(np.full(int(ok.sum()), resolution * math.hypot(dx, dy)))
+        pairs, w = np.concatenate(edges, 1), np.concatenate(weights)
+        n = int(free.sum())
+        graph = coo_matrix((w, (pairs[0], pairs[1])), shape=(n, n)).tocsr()
+        node_xy = np.stack(np.meshgrid(xs, ys), -1)[free]
+
+        def nearest(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            col = np.clip(((points[:, 0] + cols / 2) / resolution).astype(int), 0, n_x - 1)
+            row = np.clip(((rows / 2 - points[:, 1]) / resolution).astype(int), 0, n_y - 1)
+            node = index[row, col]
+            offset = np.where(node >= 0, np.linalg.norm(points - node_xy[np.maximum(node, 0)], axis=-1), np.inf)
+            return node, offset
+
+        points = np.asarray(achieved, dtype=np.float64).reshape(-1, 2)
+        goal_node, goal_offset = nearest(np.asarray(goal, dtype=np.float64).reshape(1, 2))
+        if goal_node[0] < 0:
+            return np.full(len(points), np.inf)
+        from_goal = dijkstra(graph, directed=False, indices=int(goal_node[0]))
+        node, offset = nearest(points)
+        return np.where(node >= 0, from_goal[np.maximum(node, 0)] + offset + goal_offset[0], np.inf)
+
     def _cell_xy(self, cell: Any, name: str, noise: float) -> np.ndarray:
         cell = np.asarray(cell, dtype=np.int64).reshape(2)
         _check_free_cell(self.maze.maze_map, (int(cell[0]), int(cell[1])), name)

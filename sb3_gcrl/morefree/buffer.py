@@ -33,6 +33,9 @@ class SequenceReplayBuffer:
         self.states = np.zeros((n_envs, self.rows, state_dim), dtype=np.float32)
         self.actions = np.zeros((n_envs, self.rows, action_dim), dtype=np.float32)
         self.is_first = np.zeros((n_envs, self.rows), dtype=bool)
+        #: index of the physical segment (between two physical resets) each row belongs to
+        self.segment = np.zeros((n_envs, self.rows), dtype=np.int64)
+        self._segments = np.zeros(n_envs, dtype=np.int64)
         self.pos = np.zeros(n_envs, dtype=np.int64)
         self.full = np.zeros(n_envs, dtype=bool)
 
@@ -47,9 +50,11 @@ class SequenceReplayBuffer:
         if prev_action is None:
             self.actions[env, p] = 0.0
             self.is_first[env, p] = True
+            self._segments[env] += 1
         else:
             self.actions[env, p] = prev_action
             self.is_first[env, p] = False
+        self.segment[env, p] = self._segments[env]
         self.pos[env] = (p + 1) % self.rows
         if self.pos[env] == 0:
             self.full[env] = True
@@ -94,6 +99,28 @@ class SequenceReplayBuffer:
             order = (self.pos[env] + np.arange(self.rows)) % self.rows if self.full[env] else np.arange(self.pos[env])
             streams.append(self.states[env, order, -self.goal_dim :])
         return np.concatenate(streams)
+
+    def sample_pairs(
+        self, n: int, max_gap: int, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``n`` pairs of stored achieved goals of one stream, ``gap ~ U{0..max_gap}`` steps apart.
+
+        :return: earlier goals ``(n, goal_dim)``, later goals ``(n, goal_dim)``, gaps ``(n,)`` and a validity mask
+            ``(n,)``: False where the stream is shorter than the gap or a physical reset lies between the two.
+        """
+        sizes = np.array([self.rows if f else p for p, f in zip(self.pos, self.full)])
+        if sizes.sum() == 0:
+            raise RuntimeError("the replay buffer is empty")
+        envs = rng.choice(self.n_envs, size=n, p=sizes / sizes.sum())
+        gaps = rng.integers(0, max_gap + 1, size=n)
+        available = sizes[envs] - gaps
+        offsets = (rng.random(n) * np.maximum(available, 1)).astype(np.int64)
+        # in a full ring the oldest row sits at the write position
+        starts = np.where(self.full[envs], (self.pos[envs] + offsets) % self.rows, offsets)
+        ends = (starts + gaps) % self.rows
+        valid = (available > 0) & (self.segment[envs, starts] == self.segment[envs, ends])
+        goal = slice(-self.goal_dim, None)
+        return self.states[envs, starts, goal], self.states[envs, ends, goal], gaps, valid
 
     def sample_states(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` stored state vectors, uniform over the whole buffer (the replay-state goals of Sec. 3.4.2)."""

@@ -25,6 +25,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -104,23 +105,29 @@ class MoReFree(BaseAlgorithm):
         env: GymEnv | str | None,
         learning_rate: float = 3e-4,
         buffer_size: int = 1_000_000,
-        learning_starts: int = 1000,
-        batch_size: int = 16,
-        batch_length: int = 32,
+        learning_starts: int = 2500,
+        batch_size: int = 45,
+        batch_length: int = 50,
         train_ratio: int = 2,
         imagination_horizon: int = 15,
-        imagination_starts: int | None = 64,
+        imagination_starts: int | None = None,
         gamma: float = 0.99,
         lambda_: float = 0.95,
         imagination_alpha: float | None = None,
         entropy_coef: float = 1e-4,
         target_update_interval: int = 100,
         expl_reward_scale: float = 1.0,
-        distance_neg_fraction: float = 0.1,
+        distance_pairs: int = 256,
+        distance_neg_fraction: float = 0.0,
         distance_on_replay: bool = True,
-        distance_warmup: int = 100,
-        peg_candidates: int = 64,
+        distance_window: int | None = None,
+        distance_warmup: int = 0,
+        peg_samples: int = 500,
+        peg_iterations: int = 5,
+        peg_elite_fraction: float = 0.2,
         peg_horizon: int | None = None,
+        compile_train_step: bool = False,
+        mixed_precision: bool = False,
         policy_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
@@ -157,9 +164,13 @@ class MoReFree(BaseAlgorithm):
             ("imagination_alpha", imagination_alpha, imagination_alpha is None or 0 <= imagination_alpha <= 1),
             ("entropy_coef", entropy_coef, entropy_coef >= 0),
             ("target_update_interval", target_update_interval, target_update_interval >= 1),
-            ("distance_neg_fraction", distance_neg_fraction, 0 <= distance_neg_fraction < 1),
+            ("distance_pairs", distance_pairs, distance_pairs >= 1),
+            ("distance_neg_fraction", distance_neg_fraction, 0 <= distance_neg_fraction <= 1),
+            ("distance_window", distance_window, distance_window is None or distance_window >= 1),
             ("distance_warmup", distance_warmup, distance_warmup >= 0),
-            ("peg_candidates", peg_candidates, peg_candidates >= 1),
+            ("peg_samples", peg_samples, peg_samples >= 2),
+            ("peg_iterations", peg_iterations, peg_iterations >= 1),
+            ("peg_elite_fraction", peg_elite_fraction, 0 < peg_elite_fraction <= 1),
             ("peg_horizon", peg_horizon, peg_horizon is None or peg_horizon >= 1),
         ]
         for name, value, ok in checks:
@@ -177,13 +188,23 @@ class MoReFree(BaseAlgorithm):
         self.entropy_coef = float(entropy_coef)
         self.target_update_interval = int(target_update_interval)
         self.expl_reward_scale = float(expl_reward_scale)
+        self.distance_pairs = int(distance_pairs)
         self.distance_neg_fraction = float(distance_neg_fraction)
         if not isinstance(distance_on_replay, bool):
             raise TypeError(f"distance_on_replay must be a bool, got {distance_on_replay!r}")
         self.distance_on_replay = distance_on_replay
+        self.distance_window = distance_window
         self.distance_warmup = int(distance_warmup)
-        self.peg_candidates = int(peg_candidates)
+        self.peg_samples = int(peg_samples)
+        self.peg_iterations = int(peg_iterations)
+        self.peg_elite_fraction = float(peg_elite_fraction)
         self.peg_horizon = peg_horizon
+        if not isinstance(compile_train_step, bool):
+            raise TypeError(f"compile_train_step must be a bool, got {compile_train_step!r}")
+        self.compile_train_step = compile_train_step
+        if not isinstance(mixed_precision, bool):
+            raise TypeError(f"mixed_precision must be a bool, got {mixed_precision!r}")
+        self.mixed_precision = mixed_precision
         self._n_updates = 0
         self._rng = np.random.default_rng(seed)
         if _init_setup_model:
@@ -207,6 +228,7 @@ class MoReFree(BaseAlgorithm):
         self._task_goals: TaskRelevantGoals | None = None
         self._hooks: list[tuple[PEGScheduler | None, AgentExploreAction | None]] = []
         self._go_steps: int | None = None
+        self._compiled: dict[str, Callable[..., Any]] | None = None
         self._alpha = DEFAULT_ALPHA if self.imagination_alpha is None else float(self.imagination_alpha)
 
     def _excluded_save_params(self) -> list[str]:
@@ -218,6 +240,7 @@ class MoReFree(BaseAlgorithm):
             "_stream_obs",
             "_task_goals",
             "_hooks",
+            "_compiled",
         ]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
@@ -271,8 +294,7 @@ class MoReFree(BaseAlgorithm):
         if self.imagination_alpha is None:
             alpha = env.get_attr("task_goal_alpha")[0] if env.has_attr("task_goal_alpha") else None
             self._alpha = DEFAULT_ALPHA if alpha is None else float(alpha)
-        if self.peg_horizon is None:
-            self._go_steps = int(env.get_attr("go_steps")[0]) if env.has_attr("go_steps") else None
+        self._go_steps = int(env.get_attr("go_steps")[0]) if env.has_attr("go_steps") else None
         if not env.has_attr("sample_task_goals") and self._task_goals is None:
             source = base.envs[0] if direct else env  # type: ignore[attr-defined]
             self._task_goals = TaskRelevantGoals(source, self.policy.goal_dim)
@@ -323,8 +345,45 @@ class MoReFree(BaseAlgorithm):
             goals[mask] = self.replay_buffer.sample_states(int(mask.sum()), self._rng)[:, -goal_dim:]
         return goals, kinds
 
+    def _goal_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The box PEG's planner searches: the ``desired_goal`` space, or the span of the replayed achieved goals
+        (padded by 10% each side) where that space is unbounded."""
+        space = self.observation_space["desired_goal"]  # type: ignore[index]
+        low, high = space.low.reshape(-1).astype(np.float64), space.high.reshape(-1).astype(np.float64)
+        if np.isfinite(low).all() and np.isfinite(high).all():
+            return low, high
+        visited = self.replay_buffer.achieved_goals().astype(np.float64)
+        lo, hi = visited.min(0), visited.max(0)
+        pad = 0.1 * np.maximum(hi - lo, 1e-3)
+        return np.where(np.isfinite(low), low, lo - pad), np.where(np.isfinite(high), high, hi + pad)
+
+    def _peg_fitness(self, start: LatentState, candidates: np.ndarray, horizon: int) -> th.Tensor:
+        """PEG's score of candidate goals: pi_G is imagined from ``start`` toward each for ``horizon`` steps; the
+        score sums, over the imagined path, the lambda-returns of pi_E's intrinsic reward (the ensemble's
+        disagreement) bootstrapped from V_E (PEG's ``cost_use_p2e_value``)."""
+        policy = self.policy
+        rssm = policy.world_model.rssm
+        goals = symlog(th.as_tensor(candidates, dtype=th.float32, device=self.device))
+        latent = start.expand(len(candidates))
+        feats, actions = [latent.feat], []
+        for _ in range(horizon):
+            action, _ = policy.actor_g.act(latent.feat, goals)
+            latent = rssm.img_step(latent, action)
+            feats.append(latent.feat)
+            actions.append(action)
+        feat, action = th.stack(feats), th.stack(actions)
+        rewards = self.expl_reward_scale * policy.ensemble.disagreement(feat[:-1], action)
+        returns = lambda_returns(rewards, policy.critic_e_target(feat), self.gamma, self.lambda_)
+        return returns.sum(0)
+
     def plan_exploratory_goal(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray | None:
-        """PEG goal: the replayed achieved goal whose imagined pi_G rollout ends where V_E is highest.
+        """PEG's exploratory goal (Hu et al., 2023): cross-entropy search over goal space for the goal whose imagined
+        pi_G path is worth most to the explorer.
+
+        A diagonal Gaussian starts at the env's achieved goal with half the goal box as std; each of
+        ``peg_iterations`` rounds scores ``peg_samples`` goals drawn from it (clipped to the box, see
+        :meth:`_peg_fitness`, imagined from the env's current latent) and refits it to the best
+        ``peg_elite_fraction``. The goal is a draw from the final Gaussian, as in PEG.
 
         :param obs: the env's current observation (one env).
         :param rng: the scheduler's generator (candidate draws).
@@ -333,22 +392,20 @@ class MoReFree(BaseAlgorithm):
         if self.num_timesteps < self.learning_starts or self.replay_buffer.size() == 0:
             return None
         policy = self.policy
-        goal_dim = policy.goal_dim
-        candidates = self.replay_buffer.sample_states(self.peg_candidates, rng)[:, -goal_dim:]
+        low, high = self._goal_box()
+        mean = np.asarray(obs["achieved_goal"], dtype=np.float64).reshape(-1)
+        std = 0.5 * (high - low)
+        n_elite = max(2, int(round(self.peg_elite_fraction * self.peg_samples)))
         horizon = self.peg_horizon or self._go_steps or self.imagination_horizon
         with th.no_grad():
             state = th.as_tensor(state_vector(obs), device=self.device).reshape(1, -1)
-            rssm = policy.world_model.rssm
-            action_dim = int(np.prod(self.action_space.shape))
-            post = policy.filter(rssm.initial(1, self.device), th.zeros(1, action_dim, device=self.device), state)
-            n = len(candidates)
-            latent = LatentState(*(x.expand(n, *x.shape[1:]).contiguous() for x in post))
-            goals = symlog(th.as_tensor(candidates, device=self.device))
-            for _ in range(horizon):
-                action, _ = policy.actor_g.act(latent.feat, goals)
-                latent = rssm.img_step(latent, action)
-            scores = policy.critic_e(latent.feat)
-        return candidates[int(th.argmax(scores))].astype(np.float64)
+            start = policy.hold_latent(state)
+            for _ in range(self.peg_iterations):
+                candidates = np.clip(mean + std * rng.standard_normal((self.peg_samples, mean.size)), low, high)
+                fitness = self._peg_fitness(start, candidates, horizon)
+                elite = candidates[th.topk(fitness, n_elite).indices.cpu().numpy()]
+                mean, std = elite.mean(0), np.sqrt(elite.var(0) + 1e-6)
+        return np.clip(mean + std * rng.standard_normal(mean.size), low, high)
 
     # --- acting ------------------------------------------------------------------------------------------------
     def _start_streams(self) -> None:
@@ -454,147 +511,247 @@ class MoReFree(BaseAlgorithm):
         return True
 
     # --- training ----------------------------------------------------------------------------------------------
-    def _step(self, optimizer: th.optim.Optimizer, loss: th.Tensor, params: Any) -> None:
-        optimizer.zero_grad(set_to_none=True)
+    def _apply(self, loss: th.Tensor, learners: tuple[str, ...], skip: tuple[str, ...] = ()) -> None:
+        """One backward pass of ``loss`` (a sum over learners with disjoint parameters), then each learner's clipped
+        optimizer step (``skip``: learners whose gradients are dropped, e.g. pi_G during the distance warm-up)."""
+        policy = self.policy
+        for name in learners:
+            getattr(policy, f"{name}_optimizer").zero_grad(set_to_none=True)
         loss.backward()
-        th.nn.utils.clip_grad_norm_(list(params), self.policy.grad_clip)
-        optimizer.step()
+        for name in learners:
+            if name in skip:
+                continue
+            optimizer = getattr(policy, f"{name}_optimizer")
+            params = [p for group in optimizer.param_groups for p in group["params"] if p.grad is not None]
+            th.nn.utils.clip_grad_norm_(params, policy.grad_clip, foreach=True)
+            optimizer.step()
 
-    def _imagine(
-        self, actor: Callable[[th.Tensor], tuple[th.Tensor, th.Tensor]], start: LatentState
-    ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
-        """Roll ``actor`` through the world model for ``imagination_horizon`` steps.
+    def _imagine(self, start: LatentState, goals: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """Roll pi_G (toward ``goals``) and pi_E from the same starts through the world model, in one batch.
 
-        :return: features ``(H + 1, N, F)``, actions ``(H, N, A)``, entropies ``(H, N)``.
+        Rows ``[:N]`` of the outputs follow pi_G, rows ``[N:]`` pi_E; each step is one RSSM prior step for both.
+
+        :param start: flat imagination start states ``(N, ...)`` (detached).
+        :param goals: symlog goals ``(N, G)`` of pi_G.
+        :return: features ``(H + 1, 2N, F)``, actions ``(H, 2N, A)`` (``actions[t]`` is taken in state ``t``),
+            entropies ``(H, 2N)``.
         """
-        rssm = self.policy.world_model.rssm
-        latent = start
+        policy = self.policy
+        rssm = policy.world_model.rssm
+        n = goals.shape[0]
+        latent = LatentState(*(th.cat([x, x]) for x in start))
         feats, actions, entropies = [latent.feat], [], []
         for _ in range(self.imagination_horizon):
-            action, entropy = actor(latent.feat.detach())
+            feat = latent.feat.detach()
+            action_g, entropy_g = policy.actor_g.act(feat[:n], goals)
+            action_e, entropy_e = policy.actor_e.act(feat[n:])
+            action = th.cat([action_g, action_e])
             latent = rssm.img_step(latent, action)
             feats.append(latent.feat)
             actions.append(action)
-            entropies.append(entropy)
+            entropies.append(th.cat([entropy_g, entropy_e]))
         return th.stack(feats), th.stack(actions), th.stack(entropies)
 
-    def _actor_critic(
-        self,
-        feats: th.Tensor,
-        rewards: th.Tensor,
-        entropies: th.Tensor,
-        target: th.nn.Module,
-        goals: th.Tensor | None,
-    ) -> tuple[th.Tensor, th.Tensor]:
-        """Actor loss from one imagined batch (dynamics backpropagation); returns (actor loss, lambda-returns)."""
-        steps = feats.shape[0]
-        expand = None if goals is None else goals.unsqueeze(0).expand(steps, *goals.shape)
-        values = target(feats, expand)
-        returns = lambda_returns(rewards, values, self.gamma, self.lambda_)
-        discount = self.gamma ** th.arange(steps - 1, device=feats.device, dtype=feats.dtype).unsqueeze(-1)
-        actor_loss = -(discount * (returns + self.entropy_coef * entropies)).mean()
-        return actor_loss, returns
+    def _returns(
+        self, feats: th.Tensor, rewards: th.Tensor, target: th.nn.Module, goals: th.Tensor | None
+    ) -> th.Tensor:
+        """Lambda-returns ``(H, N)`` of imagined states ``feats (H + 1, N, F)``, bootstrapped from a slow critic."""
+        expand = None if goals is None else goals.unsqueeze(0).expand(feats.shape[0], *goals.shape)
+        return lambda_returns(rewards, target(feats, expand), self.gamma, self.lambda_)
+
+    def _actor_loss(self, returns: th.Tensor, entropies: th.Tensor) -> th.Tensor:
+        """DreamerV2's dynamics-backpropagation objective: discounted lambda-returns plus the entropy bonus."""
+        discount = self._discounts(returns)
+        return -(discount * (returns + self.entropy_coef * entropies)).mean()
 
     def _critic_loss(
         self, critic: th.nn.Module, feats: th.Tensor, returns: th.Tensor, goals: th.Tensor | None
     ) -> th.Tensor:
         """Discounted regression of the critic on the (detached) lambda-returns of the imagined states."""
-        steps = returns.shape[0]
-        expand = None if goals is None else goals.unsqueeze(0).expand(steps, *goals.shape)
-        discount = self.gamma ** th.arange(steps, device=feats.device, dtype=feats.dtype).unsqueeze(-1)
+        expand = None if goals is None else goals.unsqueeze(0).expand(returns.shape[0], *goals.shape)
         prediction = critic(feats[:-1].detach(), expand)
-        return (discount * (prediction - returns.detach()).pow(2)).mean()
+        return (self._discounts(returns) * (prediction - returns.detach()).pow(2)).mean()
 
-    def _train_goal_policy(
-        self,
-        start: LatentState,
-        goals: th.Tensor,
-        replay: tuple[th.Tensor, th.Tensor, th.Tensor] | None,
-    ) -> dict[str, th.Tensor]:
-        """pi_G, V_G and the dynamical distance D from one batch of imagination starts (thesis Sec. 3.3.2).
+    def _discounts(self, returns: th.Tensor) -> th.Tensor:
+        steps = returns.shape[0]
+        return self.gamma ** th.arange(steps, device=returns.device, dtype=returns.dtype).unsqueeze(-1)
 
-        pi_G is imagined from ``start`` toward ``goals`` with the reward ``-D(s_t, g)``; D is then trained on pairs of
-        those imagined trajectories (LEXA) and, with ``replay``, on pairs of the replayed sequences, in the same unit
-        (``imagination_horizon`` steps = 1). The actor waits ``distance_warmup`` training steps for D to be trained.
+    def _goal_rewards(self, feats: th.Tensor, goals: th.Tensor) -> th.Tensor:
+        """pi_G's reward ``-D(decoded achieved goal of s_{t+1}, g)`` for ``feats (H + 1, N, F)``: ``(H, N)``."""
+        policy = self.policy
+        achieved = policy.world_model.decode_goal(feats[1:])
+        return -policy.distance(achieved, goals.unsqueeze(0).expand(achieved.shape[0], *goals.shape))
 
-        :param start: imagination start states (flat batch, detached).
-        :param goals: symlog goals, one per start.
-        :param replay: (posterior features ``(T, B, F)``, symlog achieved goals ``(T, B, G)``, ``is_first (T, B)``)
-            of the world-model batch, or None.
-        :return: the losses and the mean imagined return (detached tensors).
+    @property
+    def distance_unit(self) -> int:
+        """Steps that make distance 1: ``distance_window``, else the env's Go-phase length H_G when the distance
+        also learns from replayed pairs (which then span up to this many steps), else the imagination horizon
+        (LEXA / PEG's unit)."""
+        if self.distance_window is not None:
+            return int(self.distance_window)
+        if self.distance_on_replay and self._go_steps is not None:
+            return int(self._go_steps)
+        return self.imagination_horizon
+
+    def _model_losses(
+        self, states: th.Tensor, actions: th.Tensor, is_first: th.Tensor
+    ) -> tuple[th.Tensor, LatentState, dict[str, th.Tensor]]:
+        """World-model loss plus the Plan2Explore ensemble's on the same (detached) posteriors.
+
+        The ensemble predicts the next stochastic state from (features, action), never across a stream start.
+
+        :return: (summed loss, detached posteriors ``(T, B, ...)``, detached metrics).
         """
         policy = self.policy
-        wm = policy.world_model
-        with frozen(wm, policy.distance):
-            feats, _, entropies = self._imagine(lambda f: policy.actor_g.act(f, goals), start)
-            rewards = -policy.distance(feats[1:], goals.unsqueeze(0).expand(feats.shape[0] - 1, *goals.shape))
-            actor_loss, returns = self._actor_critic(feats, rewards, entropies, policy.critic_g_target, goals)
-        if self._n_updates >= self.distance_warmup:
-            self._step(policy.actor_g_optimizer, actor_loss, policy.actor_g.parameters())
-        critic_loss = self._critic_loss(policy.critic_g, feats, returns, goals)
-        self._step(policy.critic_g_optimizer, critic_loss, policy.critic_g.parameters())
-        with th.no_grad():
-            achieved = wm.decode_goal(feats.detach())
-        n_pairs = feats.shape[0] * feats.shape[1]
-        distance_kwargs = {"n_pairs": n_pairs, "neg_fraction": self.distance_neg_fraction, "generator": None}
-        horizon = self.imagination_horizon
-        distance_loss = policy.distance.loss(feats.detach(), achieved, horizon=horizon, **distance_kwargs)
-        if replay is not None:
-            replay_feats, replay_goals, is_first = replay
-            distance_loss = distance_loss + policy.distance.loss(
-                replay_feats.detach(), replay_goals, horizon=horizon, is_first=is_first, **distance_kwargs
-            )
-        self._step(policy.distance_optimizer, distance_loss, policy.distance.parameters())
-        return {
-            "actor_g_loss": actor_loss.detach(),
-            "critic_g_loss": critic_loss.detach(),
-            "distance_loss": distance_loss.detach(),
-            "imagined_return_g": returns.detach().mean(),
+        wm_loss, post, metrics = policy.world_model.loss(states, actions, is_first)
+        feat = post.feat.detach()
+        valid = (~is_first[1:]).to(feat.dtype)
+        ensemble_loss = policy.ensemble.loss(feat[:-1], actions[1:], post.stoch[1:].detach(), valid)
+        metrics = {**metrics, "world_model_loss": wm_loss.detach(), "ensemble_loss": ensemble_loss.detach()}
+        return wm_loss + ensemble_loss, post.detach(), metrics
+
+    def _imagination_losses(
+        self, start: LatentState, goals: th.Tensor
+    ) -> tuple[th.Tensor, tuple[th.Tensor, ...], dict[str, th.Tensor]]:
+        """Actor losses of pi_G and pi_E from one batch of imagination starts (Sec. 3.3.2); runs with the world
+        model, the distance and the ensemble frozen.
+
+        pi_G is imagined from ``start`` toward ``goals`` with the reward ``-D``; pi_E from the same starts with the
+        ensemble's disagreement; both learn by backpropagating lambda-returns through the model.
+
+        :param start: imagination start states (flat batch, detached).
+        :param goals: symlog goals of pi_G, one per start.
+        :return: (summed actor loss, detached (pi_G features, pi_E features, pi_G returns, pi_E returns), metrics).
+        """
+        policy = self.policy
+        n = goals.shape[0]
+        feats, actions, entropies = self._imagine(start, goals)
+        feats_g, feats_e = feats[:, :n], feats[:, n:]
+        rewards_g = self._goal_rewards(feats_g, goals)
+        rewards_e = self.expl_reward_scale * policy.ensemble.disagreement(feats_e[:-1], actions[:, n:])
+        returns_g = self._returns(feats_g, rewards_g, policy.critic_g_target, goals)
+        returns_e = self._returns(feats_e, rewards_e, policy.critic_e_target, None)
+        actor_g_loss = self._actor_loss(returns_g, entropies[:, :n])
+        actor_e_loss = self._actor_loss(returns_e, entropies[:, n:])
+        metrics = {
+            "actor_g_loss": actor_g_loss,
+            "actor_e_loss": actor_e_loss,
+            "imagined_return_g": returns_g.mean(),
+            "imagined_return_e": returns_e.mean(),
+            "imagined_reward_e": rewards_e.mean(),
+            "action_g_abs": actions[:, :n].abs().mean(),
+            "entropy_g": entropies[:, :n].mean(),
         }
+        imagined = tuple(x.detach() for x in (feats_g, feats_e, returns_g, returns_e))
+        return actor_g_loss + actor_e_loss, imagined, {k: v.detach() for k, v in metrics.items()}
+
+    def _learner_losses(
+        self,
+        imagined: tuple[th.Tensor, ...],
+        goals: th.Tensor,
+        groups: th.Tensor,
+        replay_pairs: tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor] | None,
+    ) -> tuple[th.Tensor, dict[str, th.Tensor]]:
+        """Critic losses of V_G and V_E and the distance's, from the imagined trajectories of
+        :meth:`_imagination_losses`.
+
+        D is trained on pairs of the imagined pi_G trajectories' decoded achieved goals (LEXA / PEG) and, with
+        ``replay_pairs``, on pairs of achieved goals of the replayed streams, in one unit (:attr:`distance_unit`).
+
+        :param imagined: detached (pi_G features, pi_E features, pi_G returns, pi_E returns).
+        :param goals: symlog goals of pi_G.
+        :param groups: replayed sequence of each start (negatives of the distance come from other sequences).
+        :param replay_pairs: (symlog earlier goals, symlog later goals, steps between them, 0/1 validity) of
+            replayed pairs, or None.
+        :return: (summed loss, detached metrics).
+        """
+        policy = self.policy
+        feats_g, feats_e, returns_g, returns_e = imagined
+        critic_g_loss = self._critic_loss(policy.critic_g, feats_g, returns_g, goals)
+        critic_e_loss = self._critic_loss(policy.critic_e, feats_e, returns_e, None)
+        with th.no_grad():
+            imagined_goals = policy.world_model.decode_goal(feats_g)
+        unit = self.distance_unit
+        distance_loss = policy.distance.trajectory_loss(
+            imagined_goals, self.distance_pairs, unit, self.distance_neg_fraction, groups=groups
+        )
+        if replay_pairs is not None:
+            distance_loss = distance_loss + policy.distance.loss(*replay_pairs[:3], unit, replay_pairs[3])
+        metrics = {"critic_g_loss": critic_g_loss, "critic_e_loss": critic_e_loss, "distance_loss": distance_loss}
+        return critic_g_loss + critic_e_loss + distance_loss, {k: v.detach() for k, v in metrics.items()}
+
+    def _replay_pairs(self) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
+        """Pairs of replayed achieved goals for the distance: ``distance_pairs`` pairs of one stream up to
+        :attr:`distance_unit` steps apart, plus ``distance_neg_fraction`` of them as negatives (two states drawn
+        independently from the whole buffer, target ``distance_unit + 1`` steps: beyond every positive).
+
+        :return: (symlog earlier goals, symlog later goals, steps between them, 0/1 validity).
+        """
+        unit = self.distance_unit
+        first, later, steps, valid = self.replay_buffer.sample_pairs(self.distance_pairs, unit, self._rng)
+        n_neg = int(round(self.distance_neg_fraction * self.distance_pairs))
+        if n_neg > 0:
+            goal_dim = self.policy.goal_dim
+            first = np.concatenate([first, self.replay_buffer.sample_states(n_neg, self._rng)[:, -goal_dim:]])
+            later = np.concatenate([later, self.replay_buffer.sample_states(n_neg, self._rng)[:, -goal_dim:]])
+            steps = np.concatenate([steps, np.full(n_neg, unit + 1)])
+            valid = np.concatenate([valid, np.ones(n_neg, dtype=bool)])
+        as_tensor = lambda x, dtype=None: th.as_tensor(x, dtype=dtype, device=self.device)  # noqa: E731
+        return symlog(as_tensor(first)), symlog(as_tensor(later)), as_tensor(steps), as_tensor(valid, th.float32)
+
+    def _autocast(self) -> AbstractContextManager[Any]:
+        """bfloat16 matrix products (``torch.autocast``) with ``mixed_precision``, as PEG's ``precision: 16``; the
+        distributions, losses and the GRU's normalisation stay in float32."""
+        if not self.mixed_precision:
+            return nullcontext()
+        return th.autocast(self.device.type, dtype=th.bfloat16)
+
+    def _loss_functions(self) -> dict[str, Callable[..., Any]]:
+        """The three loss computations of a training step, compiled with ``torch.compile`` when
+        ``compile_train_step`` (compiled once, on the first training step of the process)."""
+        names = ("_model_losses", "_imagination_losses", "_learner_losses")
+        if not self.compile_train_step:
+            return {name: getattr(self, name) for name in names}
+        if self._compiled is None:
+            self._compiled = {name: th.compile(getattr(self, name)) for name in names}
+        return self._compiled
 
     def train(self) -> None:
-        """One training step (Algorithm 2, lines 10-14): world model, ensemble, pi_G with distance, pi_E."""
+        """One training step (Algorithm 2, lines 10-14): world model and ensemble, then pi_G, pi_E and D.
+
+        Two backward passes per step: the world model with the ensemble, then every learner trained in imagination
+        (their parameters are disjoint; the world model, D and the ensemble are frozen while imagining).
+        """
         policy = self.policy
         policy.set_training_mode(True)
-        wm = policy.world_model
+        losses = self._loss_functions()
         states_np, actions_np, first_np = self.replay_buffer.sample(self.batch_size, self.batch_length, self._rng)
         states = th.as_tensor(states_np, device=self.device)
         actions = th.as_tensor(actions_np, device=self.device)
         is_first = th.as_tensor(first_np, device=self.device)
 
-        wm_loss, post, embed, metrics = wm.loss(states, actions, is_first)
-        self._step(policy.wm_optimizer, wm_loss, wm.parameters())
+        with self._autocast():
+            model_loss, post, metrics = losses["_model_losses"](states, actions, is_first)
+        self._apply(model_loss, ("wm", "ensemble"))
 
-        # Plan2Explore ensemble: next embedding from (features, next action), never across a stream start
-        feat = post.feat.detach()
-        valid = (~is_first[1:]).float()
-        errors = (policy.ensemble(feat[:-1], actions[1:]) - embed[1:].detach().unsqueeze(0)).pow(2).sum(-1)
-        ensemble_loss = (errors * valid).sum() / (valid.sum() * errors.shape[0]).clamp(min=1)
-        self._step(policy.ensemble_optimizer, ensemble_loss, policy.ensemble.parameters())
-
-        start = post.detach().flatten()
+        start = post.flatten()
+        groups = th.arange(self.batch_size, device=self.device).repeat(self.batch_length)
         n_starts = start.deter.shape[0]
         if self.imagination_starts is not None and self.imagination_starts < n_starts:
             rows = th.as_tensor(self._rng.choice(n_starts, self.imagination_starts, replace=False), device=self.device)
-            start = LatentState(start.deter[rows], start.stoch[rows], start.logits[rows])
+            start, groups = start.rows(rows), groups[rows]
             n_starts = self.imagination_starts
-
-        # pi_G toward task-relevant / replayed goals, rewarded by the learned dynamical distance
         goals_np, _ = self.sample_imagination_goals(n_starts)
         goals = symlog(th.as_tensor(goals_np, device=self.device))
-        replay = None
-        if self.distance_on_replay:
-            replay = (feat, symlog(states[..., -policy.goal_dim :]), is_first)
-        losses = self._train_goal_policy(start, goals, replay)
-
-        # pi_E on the ensemble's disagreement (Plan2Explore)
-        with frozen(wm, policy.ensemble):
-            feats_e, actions_e, entropies_e = self._imagine(policy.actor_e.act, start)
-            rewards_e = self.expl_reward_scale * policy.ensemble.disagreement(feats_e[:-1], actions_e)
-            actor_e_loss, returns_e = self._actor_critic(feats_e, rewards_e, entropies_e, policy.critic_e_target, None)
-        self._step(policy.actor_e_optimizer, actor_e_loss, policy.actor_e.parameters())
-        critic_e_loss = self._critic_loss(policy.critic_e, feats_e, returns_e, None)
-        self._step(policy.critic_e_optimizer, critic_e_loss, policy.critic_e.parameters())
+        replay_pairs = self._replay_pairs() if self.distance_on_replay else None
+        with frozen(policy.world_model, policy.distance, policy.ensemble), self._autocast():
+            actor_loss, imagined, actor_metrics = losses["_imagination_losses"](start, goals)
+        with self._autocast():
+            learner_loss, learner_metrics = losses["_learner_losses"](imagined, goals, groups, replay_pairs)
+        learners = ("actor_g", "critic_g", "actor_e", "critic_e", "distance")
+        self._apply(
+            actor_loss + learner_loss, learners, skip=("actor_g",) if self._n_updates < self.distance_warmup else ()
+        )
 
         self._n_updates += 1
         if self._n_updates % self.target_update_interval == 0:
@@ -603,15 +760,8 @@ class MoReFree(BaseAlgorithm):
         if self._n_updates % 10 == 1:  # .item() syncs a GPU: record every 10 updates
             log = self.logger.record
             log("train/n_updates", self._n_updates, exclude="tensorboard")
-            log("train/world_model_loss", wm_loss.item())
-            log("train/recon_loss", metrics["recon_loss"])
-            log("train/kl", metrics["kl"])
-            log("train/ensemble_loss", ensemble_loss.item())
-            for name, value in losses.items():
+            for name, value in {**metrics, **actor_metrics, **learner_metrics}.items():
                 log(f"train/{name}", value.item())
-            log("train/actor_e_loss", actor_e_loss.item())
-            log("train/critic_e_loss", critic_e_loss.item())
-            log("train/imagined_return_e", returns_e.mean().item())
             log("train/imagination_alpha", self._alpha)
 
     # --- learn ----------------------------------------------------------------------------------------------------

@@ -13,6 +13,7 @@ Acting: :meth:`MoReFreePolicy.predict` follows SB3's signature and returns ``sta
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -31,28 +32,34 @@ from sb3_gcrl.morefree.networks import (
     symlog,
 )
 
-#: network sizes of the CPU preset (PointUMaze in about 1 h per 50k steps on one core)
-CPU_NETWORK = {
+
+def make_optimizer(params: Iterable[th.nn.Parameter], lr: float, weight_decay: float) -> th.optim.Optimizer:
+    """DreamerV2's optimizer: Adam (eps 1e-5) with decoupled weight decay; one fused kernel per step (CPU and CUDA)."""
+    return th.optim.AdamW(params, lr=lr, eps=1e-5, weight_decay=weight_decay, fused=True)
+
+
+#: network sizes of the CPU preset (see docs/morefree.md for its speed and what it learns)
+CPU_NETWORK: dict[str, int] = {
     "deter": 64,
-    "stoch": 8,
-    "classes": 8,
-    "hidden": 64,
-    "embed_dim": 64,
+    "stoch": 16,
+    "rssm_hidden": 64,
+    "model_hidden": 128,
     "model_layers": 2,
-    "actor_hidden": 64,
-    "actor_layers": 2,
-    "ensemble_size": 3,
+    "head_hidden": 128,
+    "head_layers": 2,
+    "ensemble_size": 5,
+    "ensemble_hidden": 64,
 }
-#: thesis preset (GPU): sized after DreamerV2's DMC settings (PEG's backbone); not checked against PEG's config
-THESIS_NETWORK = {
+#: thesis preset (GPU): PEG's state-input point-maze configuration (Gaussian latents 50 + GRU 200, encoder and
+#: decoder 3 x 400, actors, critics, distance and ensemble 4 x 400, 10 ensemble members)
+THESIS_NETWORK: dict[str, int] = {
     "deter": 200,
-    "stoch": 32,
-    "classes": 32,
-    "hidden": 200,
-    "embed_dim": 200,
-    "model_layers": 4,
-    "actor_hidden": 400,
-    "actor_layers": 4,
+    "stoch": 50,
+    "rssm_hidden": 200,
+    "model_hidden": 400,
+    "model_layers": 3,
+    "head_hidden": 400,
+    "head_layers": 4,
     "ensemble_size": 10,
 }
 
@@ -68,27 +75,32 @@ def state_vector(obs: dict[str, Any]) -> np.ndarray:
 class MoReFreePolicy(BasePolicy):
     """World model and the two actor-critics of MoReFree (thesis Eq. 3.3), plus the distance and ensemble nets.
 
+    Defaults are PEG's state-input point-maze configuration (:data:`THESIS_NETWORK`, learning rates of its config).
+
     :param observation_space: Dict goal observation space (``observation``, ``achieved_goal``, ``desired_goal``).
     :param action_space: Box action space.
-    :param lr_schedule: world-model learning rate (constant; DreamerV2 3e-4).
-    :param actor_lr: actor learning rate (DreamerV2 8e-5 for continuous control, 1e-4 here by default).
-    :param critic_lr: critic and distance learning rate.
-    :param deter: GRU state size.
-    :param stoch: categorical latent variables.
-    :param classes: classes per variable.
-    :param hidden: hidden units of the world model.
-    :param embed_dim: observation embedding size.
-    :param model_layers: hidden layers of encoder/decoder.
-    :param actor_hidden: hidden units of actors, critics, distance and ensemble.
-    :param actor_layers: hidden layers of those heads.
-    :param ensemble_size: Plan2Explore ensemble members.
-    :param kl_balance: DreamerV2 KL balancing.
-    :param free_nats: DreamerV2 free nats.
-    :param grad_clip: gradient-norm clip of every optimizer (DreamerV2: 100).
+    :param lr_schedule: world-model learning rate (constant; PEG 3e-4).
+    :param actor_lr: learning rate of pi_G and pi_E (PEG 8e-5).
+    :param critic_lr: learning rate of V_G and V_E (PEG 8e-5).
+    :param distance_lr: learning rate of the dynamical distance (PEG 8e-5).
+    :param ensemble_lr: learning rate of the Plan2Explore ensemble (PEG 3e-4).
+    :param weight_decay: decoupled weight decay of every optimizer (DreamerV2 1e-6).
+    :param deter: GRU state size (PEG 200).
+    :param stoch: Gaussian latent size (PEG 50).
+    :param rssm_hidden: hidden units of the RSSM's layers (PEG 200).
+    :param model_hidden: units of the encoder / decoder layers (PEG 400); the embedding has this size.
+    :param model_layers: layers of encoder and decoder (PEG 3).
+    :param head_hidden: hidden units of actors, critics, distance and ensemble members (PEG 400).
+    :param head_layers: hidden layers of those heads (PEG 4).
+    :param ensemble_size: Plan2Explore ensemble members (PEG 10).
+    :param ensemble_hidden: hidden units of each ensemble member (``None``: ``head_hidden``, as PEG).
+    :param kl_balance: DreamerV2 KL balancing (0.8).
+    :param free_nats: free nats on the average KL (PEG 1.0).
+    :param grad_clip: gradient-norm clip of every optimizer (DreamerV2 100).
     :param predict_burn_in: posterior steps of the memoryless ``predict`` (no ``episode_start``): the observation is
         filtered this many times with a zero action from the zero state, the latent of an agent that has stayed at
         that observation. One step leaves the latent at the zero state's posterior, which pi_G rarely sees in
-        imagination (a trained GrowingTree pi_G reached no goal from it; see docs/morefree.md).
+        imagination.
     """
 
     def __init__(
@@ -96,17 +108,20 @@ class MoReFreePolicy(BasePolicy):
         observation_space: spaces.Dict,
         action_space: spaces.Box,
         lr_schedule: Schedule,
-        actor_lr: float = 1e-4,
-        critic_lr: float = 3e-4,
-        deter: int = 128,
-        stoch: int = 16,
-        classes: int = 16,
-        hidden: int = 128,
-        embed_dim: int = 128,
-        model_layers: int = 2,
-        actor_hidden: int = 128,
-        actor_layers: int = 2,
-        ensemble_size: int = 5,
+        actor_lr: float = 8e-5,
+        critic_lr: float = 8e-5,
+        distance_lr: float = 8e-5,
+        ensemble_lr: float = 3e-4,
+        weight_decay: float = 1e-6,
+        deter: int = 200,
+        stoch: int = 50,
+        rssm_hidden: int = 200,
+        model_hidden: int = 400,
+        model_layers: int = 3,
+        head_hidden: int = 400,
+        head_layers: int = 4,
+        ensemble_size: int = 10,
+        ensemble_hidden: int | None = None,
         kl_balance: float = 0.8,
         free_nats: float = 1.0,
         grad_clip: float = 100.0,
@@ -116,19 +131,28 @@ class MoReFreePolicy(BasePolicy):
         check_spaces(observation_space, action_space)
         if predict_burn_in < 1:
             raise ValueError(f"predict_burn_in must be >= 1 (one posterior step), got {predict_burn_in}")
+        rates = {"actor_lr": actor_lr, "critic_lr": critic_lr, "distance_lr": distance_lr, "ensemble_lr": ensemble_lr}
+        for name, value in {**rates, "grad_clip": grad_clip}.items():
+            if not value > 0:
+                raise ValueError(f"{name} must be positive, got {value!r}")
+        sizes = {"deter": deter, "stoch": stoch, "rssm_hidden": rssm_hidden, "model_hidden": model_hidden}
+        sizes.update(model_layers=model_layers, head_hidden=head_hidden)
+        for name, value in sizes.items():
+            if int(value) < 1:
+                raise ValueError(f"{name} must be >= 1, got {value!r}")
+        if ensemble_hidden is not None and int(ensemble_hidden) < 1:
+            raise ValueError(f"ensemble_hidden must be >= 1 (or None), got {ensemble_hidden!r}")
+        if head_layers < 0 or weight_decay < 0:
+            raise ValueError(f"head_layers and weight_decay must be >= 0, got {head_layers}, {weight_decay}")
         self.predict_burn_in = int(predict_burn_in)
         self.lr_schedule = lr_schedule
-        self.actor_lr, self.critic_lr, self.grad_clip = actor_lr, critic_lr, grad_clip
+        self.learning_rates = rates
+        self.weight_decay, self.grad_clip = float(weight_decay), float(grad_clip)
         self.net_kwargs = {
-            "deter": deter,
-            "stoch": stoch,
-            "classes": classes,
-            "hidden": hidden,
-            "embed_dim": embed_dim,
-            "model_layers": model_layers,
-            "actor_hidden": actor_hidden,
-            "actor_layers": actor_layers,
+            **sizes,
+            "head_layers": head_layers,
             "ensemble_size": ensemble_size,
+            "ensemble_hidden": ensemble_hidden,
             "kl_balance": kl_balance,
             "free_nats": free_nats,
         }
@@ -141,36 +165,39 @@ class MoReFreePolicy(BasePolicy):
             self.state_dim,
             self.goal_dim,
             action_dim,
-            hidden,
-            model_layers,
-            embed_dim,
-            deter,
-            stoch,
-            classes,
-            kl_balance,
-            free_nats,
+            hidden=model_hidden,
+            layers=model_layers,
+            deter=deter,
+            stoch=stoch,
+            rssm_hidden=rssm_hidden,
+            kl_balance=kl_balance,
+            free_nats=free_nats,
         )
         feat = self.world_model.feat_dim
-        self.actor_g = Actor(feat, self.goal_dim, action_dim, actor_hidden, actor_layers)
-        self.critic_g = Critic(feat, self.goal_dim, actor_hidden, actor_layers)
-        self.critic_g_target = Critic(feat, self.goal_dim, actor_hidden, actor_layers)
-        self.actor_e = Actor(feat, 0, action_dim, actor_hidden, actor_layers)
-        self.critic_e = Critic(feat, 0, actor_hidden, actor_layers)
-        self.critic_e_target = Critic(feat, 0, actor_hidden, actor_layers)
-        self.distance = DynamicalDistance(feat, self.goal_dim, actor_hidden, actor_layers)
-        self.ensemble = DisagreementEnsemble(feat, action_dim, embed_dim, ensemble_size, actor_hidden, actor_layers)
+        self.actor_g = Actor(feat, self.goal_dim, action_dim, head_hidden, head_layers)
+        self.critic_g = Critic(feat, self.goal_dim, head_hidden, head_layers)
+        self.critic_g_target = Critic(feat, self.goal_dim, head_hidden, head_layers)
+        self.actor_e = Actor(feat, 0, action_dim, head_hidden, head_layers)
+        self.critic_e = Critic(feat, 0, head_hidden, head_layers)
+        self.critic_e_target = Critic(feat, 0, head_hidden, head_layers)
+        self.distance = DynamicalDistance(self.goal_dim, head_hidden, head_layers)
+        ensemble_width = head_hidden if ensemble_hidden is None else int(ensemble_hidden)
+        self.ensemble = DisagreementEnsemble(feat, action_dim, stoch, ensemble_size, ensemble_width, head_layers)
         self.critic_g_target.load_state_dict(self.critic_g.state_dict())
         self.critic_e_target.load_state_dict(self.critic_e.state_dict())
         self.critic_g_target.requires_grad_(False)
         self.critic_e_target.requires_grad_(False)
-        adam = th.optim.Adam
-        self.wm_optimizer = adam(self.world_model.parameters(), lr=lr_schedule(1), eps=1e-5)
-        self.actor_g_optimizer = adam(self.actor_g.parameters(), lr=actor_lr, eps=1e-5)
-        self.critic_g_optimizer = adam(self.critic_g.parameters(), lr=critic_lr, eps=1e-5)
-        self.actor_e_optimizer = adam(self.actor_e.parameters(), lr=actor_lr, eps=1e-5)
-        self.critic_e_optimizer = adam(self.critic_e.parameters(), lr=critic_lr, eps=1e-5)
-        self.distance_optimizer = adam(self.distance.parameters(), lr=critic_lr, eps=1e-5)
-        self.ensemble_optimizer = adam(self.ensemble.parameters(), lr=lr_schedule(1), eps=1e-5)
+        learners = {
+            "wm": (self.world_model, lr_schedule(1)),
+            "actor_g": (self.actor_g, actor_lr),
+            "critic_g": (self.critic_g, critic_lr),
+            "actor_e": (self.actor_e, actor_lr),
+            "critic_e": (self.critic_e, critic_lr),
+            "distance": (self.distance, distance_lr),
+            "ensemble": (self.ensemble, ensemble_lr),
+        }
+        for name, (module, lr) in learners.items():
+            setattr(self, f"{name}_optimizer", make_optimizer(module.parameters(), lr, self.weight_decay))
         self._eval_state: LatentState | None = None
         self._eval_action: th.Tensor | None = None
 
@@ -181,10 +208,10 @@ class MoReFreePolicy(BasePolicy):
         data = {"observation_space": self.observation_space, "action_space": self.action_space}
         data.update(
             lr_schedule=self.lr_schedule,
-            actor_lr=self.actor_lr,
-            critic_lr=self.critic_lr,
+            weight_decay=self.weight_decay,
             grad_clip=self.grad_clip,
             predict_burn_in=self.predict_burn_in,
+            **self.learning_rates,
             **self.net_kwargs,
         )
         return data
@@ -206,6 +233,16 @@ class MoReFreePolicy(BasePolicy):
         rssm = self.world_model.rssm
         return rssm.posterior(rssm.step_deter(state, prev_action), self.world_model.embed(states), deterministic)
 
+    def hold_latent(self, states: th.Tensor, deterministic: bool = False) -> LatentState:
+        """The latent of state vectors ``states`` held for ``predict_burn_in`` steps with a zero action, from the zero
+        state: the memoryless latent of :meth:`predict` and of PEG's planning start."""
+        start = self.world_model.rssm.initial(states.shape[0], states.device)
+        no_action = th.zeros(states.shape[0], self.action_space.shape[0], device=states.device)
+        post = start
+        for _ in range(self.predict_burn_in):
+            post = self.filter(post, no_action, states, deterministic)
+        return post
+
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
         # memoryless: the latent of this observation held for predict_burn_in steps, from the zero state
         assert isinstance(observation, dict)
@@ -213,13 +250,7 @@ class MoReFreePolicy(BasePolicy):
             [observation["observation"].float().flatten(1), observation["achieved_goal"].float().flatten(1)], 1
         )
         goals = symlog(observation["desired_goal"].float().flatten(1))
-        rssm = self.world_model.rssm
-        start = rssm.initial(states.shape[0], states.device)
-        no_action = th.zeros(states.shape[0], self.action_space.shape[0], device=states.device)
-        post = start
-        for _ in range(self.predict_burn_in):
-            post = self.filter(post, no_action, states, deterministic)
-        return self.actor_g.act(post.feat, goals, deterministic)[0]
+        return self.actor_g.act(self.hold_latent(states, deterministic).feat, goals, deterministic)[0]
 
     def predict(
         self,
@@ -247,7 +278,8 @@ class MoReFreePolicy(BasePolicy):
             assert self._eval_action is not None
             keep = th.as_tensor(~np.asarray(episode_start, dtype=bool).reshape(-1), device=self.device)
             keep = keep.float().unsqueeze(-1)
-            prev = LatentState(self._eval_state.deter * keep, self._eval_state.stoch * keep, self._eval_state.logits)
+            prev = self._eval_state
+            prev = LatentState(prev.deter * keep, prev.stoch * keep, prev.mean, prev.std)
             post = self.filter(prev, self._eval_action * keep, states, deterministic)
             actions = self.actor_g.act(post.feat, goals, deterministic)[0]
             self._eval_state, self._eval_action = post, actions

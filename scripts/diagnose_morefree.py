@@ -1,0 +1,117 @@
+"""Why the world-model MoReFree agent learns, or does not: its pieces probed against PointUMaze's true geometry.
+
+Trains the CPU preset on reset-free PointUMaze (``zoo_configs/morefree_pointumaze_morefree_cpu.yml``: its wrappers
+and settings) for ``--steps`` env steps, probing every ``--every`` steps, or loads a saved model (``--load``, with
+its replay buffer from ``--load-buffer``, since the probes read replayed states), and prints a table:
+
+* distance rank correlation: Spearman correlation of the learned distance ``D(s, g)`` with the shortest-path
+  distance through the maze, over replayed states ``s`` and replayed goals ``g`` (and, ``task``, the evaluation
+  goals rho_g*);
+* goal sensitivity: mean ``|pi_G(s, g_a) - pi_G(s, g_b)|`` (deterministic actions, fraction of the action range)
+  over replayed latent states and two replayed goals, beside that of an untrained actor on the same states;
+* critic calibration: ``std V_G / std R^lambda`` over imagination starts;
+
+with the evaluation success (deterministic pi_G, the task's own 300-step episodes) and wall / CPU time::
+
+    python scripts/diagnose_morefree.py --steps 50000 --every 10000          # about 1 h on one core
+    python scripts/diagnose_morefree.py --load run.zip --load-buffer run_buffer.pkl
+
+``--config`` picks another shipped config of the world-model agent (e.g. ``morefree_pointumaze_peg_cpu``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+import yaml
+from rl_zoo3.utils import get_wrapper_class
+from stable_baselines3.common.env_util import make_vec_env
+
+import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
+from sb3_gcrl.callbacks import ResetFreeCallback
+from sb3_gcrl.morefree import MoReFree
+from sb3_gcrl.morefree.diagnostics import diagnose
+
+CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"
+
+
+def evaluate(model: MoReFree, env_id: str, episodes: int) -> tuple[float, float]:
+    """Deterministic pi_G over the task's own episodes: (success rate, mean final distance to the goal)."""
+    env = gym.make(env_id)
+    successes, distances = [], []
+    for k in range(episodes):
+        obs, _ = env.reset(seed=10_000 + k)
+        start, done, info = True, False, {}
+        while not done:
+            action, _ = model.predict(obs, episode_start=np.array([start]), deterministic=True)
+            obs, _, terminated, truncated, info = env.step(action)
+            start, done = False, terminated or truncated
+        successes.append(float(info["is_success"]))
+        distances.append(float(np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"])))
+    return float(np.mean(successes)), float(np.mean(distances))
+
+
+def row(model: MoReFree, env: gym.Env, env_id: str, episodes: int, wall: float, cpu: float) -> str:
+    figures = diagnose(model, env)
+    success, distance = evaluate(model, env_id, episodes)
+    return (
+        f"| {model.num_timesteps} | {figures['distance_rank_correlation']:.2f} | "
+        f"{figures['distance_rank_correlation_task']:.2f} | {figures['goal_sensitivity']:.3f} | "
+        f"{figures['goal_sensitivity_untrained']:.3f} | {figures['critic_calibration']:.2f} | {success:.2f} | "
+        f"{distance:.2f} | {time.perf_counter() - wall:.0f} | {time.process_time() - cpu:.0f} |"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", default="morefree_pointumaze_morefree_cpu", help="config stem in zoo_configs/")
+    parser.add_argument("--steps", type=int, default=50_000, help="env steps to train")
+    parser.add_argument("--every", type=int, default=10_000, help="env steps between probes")
+    parser.add_argument("--episodes", type=int, default=10, help="evaluation episodes per probe")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--set", nargs="*", default=[], help="MoReFree arguments, e.g. distance_warmup=0")
+    parser.add_argument("--load", help="probe this saved model instead of training")
+    parser.add_argument("--load-buffer", help="its replay buffer (MoReFree.save_replay_buffer)")
+    parser.add_argument("--save", help="save the trained model (and its replay buffer beside it)")
+    parser.add_argument("--num-threads", type=int, default=1)
+    args = parser.parse_args()
+    th.set_num_threads(args.num_threads)
+
+    ((env_id, hyperparams),) = yaml.safe_load((CONFIGS / f"{args.config}.yml").read_text()).items()
+    vec_env = make_vec_env(env_id, n_envs=1, seed=args.seed, wrapper_class=get_wrapper_class(hyperparams))
+    env = vec_env.envs[0]
+    print(f"| env steps | D rank corr. (replay goals) | D rank corr. (rho_g*) | goal sensitivity | untrained | "
+          f"critic calibration | success | final distance | wall s | CPU s |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    wall, cpu = time.perf_counter(), time.process_time()
+    if args.load is not None:
+        model = MoReFree.load(args.load, env=vec_env, device="cpu")
+        if args.load_buffer is None:
+            raise SystemExit("--load needs --load-buffer: the probes read the agent's replayed states")
+        model.load_replay_buffer(args.load_buffer)
+        print(row(model, env, env_id, args.episodes, wall, cpu), flush=True)
+        return
+    skip = ("n_timesteps", "policy", "env_wrapper", "callback")
+    kwargs = {k: v for k, v in hyperparams.items() if k not in skip}
+    if isinstance(kwargs.get("policy_kwargs"), str):
+        kwargs["policy_kwargs"] = eval(kwargs["policy_kwargs"])  # RL-Zoo's convention: a dict literal in a string
+    kwargs.update({k: ast.literal_eval(v) for k, v in (item.split("=", 1) for item in args.set)})
+    model = MoReFree("MultiInputPolicy", vec_env, seed=args.seed, device="cpu", **kwargs)
+    callback = ResetFreeCallback()
+    while model.num_timesteps < args.steps:
+        model.learn(args.every, callback=callback, reset_num_timesteps=False)
+        if model._n_updates > 0:
+            print(row(model, env, env_id, args.episodes, wall, cpu), flush=True)
+    if args.save is not None:
+        model.save(args.save)
+        model.save_replay_buffer(str(Path(args.save).with_suffix("")) + "_buffer.pkl")
+
+
+if __name__ == "__main__":
+    main()
