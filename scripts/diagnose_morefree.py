@@ -86,8 +86,10 @@ def main() -> None:
     ((env_id, hyperparams),) = yaml.safe_load((CONFIGS / f"{args.config}.yml").read_text()).items()
     vec_env = make_vec_env(env_id, n_envs=1, seed=args.seed, wrapper_class=get_wrapper_class(hyperparams))
     env = vec_env.envs[0]
-    print(f"| env steps | D rank corr. (replay goals) | D rank corr. (rho_g*) | goal sensitivity | untrained | "
-          f"critic calibration | success | final distance | wall s | CPU s |")
+    print(
+        "| env steps | D rank corr. (replay goals) | D rank corr. (rho_g*) | goal sensitivity | untrained | "
+        "critic calibration | success | final distance | wall s | CPU s |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     wall, cpu = time.perf_counter(), time.process_time()
     if args.load is not None:

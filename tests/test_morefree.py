@@ -690,6 +690,7 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
     assert goal_sensitivity(model, 64) == 0.0
     model.policy.actor_g.act = lambda feat, goal, deterministic=False: (goal, th.zeros(len(feat)))
     assert 0.05 < goal_sensitivity(model, 64) <= 1.0
+
     # (c) imagined paths that end at 3 x their start, rewards 0, gamma = lambda = 1 and V = 2 x feature 0: the
     # returns are 6 x feature 0 of the starts and V 2 x of it, a calibration of 1/3; a constant critic gives 0
     def imagine(start: LatentState, goals: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
