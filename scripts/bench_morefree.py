@@ -1,25 +1,36 @@
-"""Speed of the model-based MoReFree agent on reset-free PointUMaze (CPU preset by default), one thread.
+"""Speed of the world-model MoReFree agent's training step, beside sheeprl's DreamerV3 step at equal sizes.
 
-Prints env steps/s of data collection (world-model filtering + pi_G/pi_E actions, Back-and-Forth Go-Explore with
-PEG goals), training steps/s (world model + ensemble + pi_G/distance + pi_E in imagination), and the time a
-50k-step run would take at the preset's train ratio::
+Prints one table row per setting, each timed on one thread after every warm-up (compilation included in the
+warm-up, reported apart):
 
-    python scripts/bench_morefree.py                      # CPU preset, 1 thread
-    python scripts/bench_morefree.py --preset thesis --device cuda
+* ``cpu``: the CPU preset as shipped (``CPU_NETWORK``, batch 16 x 32, 128 imagination starts, train ratio 2);
+* ``cpu-full``: the CPU preset with every posterior state an imagination start (512, as PEG / DreamerV3);
+* ``thesis``: the thesis preset (``THESIS_NETWORK``, PEG's batch 45 x 50, 2250 starts), a few steps.
 
-``--curve growingtree`` / ``--curve pointumaze`` instead trains the CPU preset for ``--steps`` env steps (episodic
-GrowingTree; reset-free PointUMaze as ``zoo_configs/morefree_pointumaze_morefree_cpu.yml`` sets it up, whose
-``learning_starts`` then applies) and prints the deterministic evaluation success
-every ``--eval-every`` steps (GrowingTree: goals -1, 0.5, 1, 1.5 from height 0; PointUMaze: the task's own
-episodes of 300 steps), with wall and process CPU time::
+For each, the train steps/s (median over ``--repeats``, wall and process CPU time) of the plain step (``eager``),
+the compiled one (``compiled``: ``compile_train_step``) and the compiled bfloat16 one (``compiled-bf16``: also
+``mixed_precision``). Where both imagine from every posterior state (``cpu-full``, ``thesis``), sheeprl's DreamerV3
+train step at the same sizes (``scripts/bench_sheeprl_dreamer.py``, run with ``--sheeprl-python``, the interpreter
+of a venv holding sheeprl; skipped without it) is timed in the same run, alternating with ours. sheeprl's latent is
+``stoch`` categoricals of one class (as wide as our Gaussian latent, so the matrix products match; it carries no
+information, which does not change the time), its MLPs all ``head_hidden`` wide with ``head_layers`` layers. Our
+step does more than sheeprl's: two actor-critics (pi_G and pi_E), the distance and the Plan2Explore ensemble
+besides the world model::
 
-    python scripts/bench_morefree.py --curve growingtree --steps 6000 --eval-every 1000
+    python scripts/bench_morefree.py --sheeprl-python /work/venv-sheeprl/bin/python
+    python scripts/bench_morefree.py --settings cpu --variants compiled-bf16 --collect   # + env steps/s
+
+``--collect`` also times data collection (filtering, pi_G / pi_E actions, Back-and-Forth Go-Explore with PEG goals)
+of the CPU preset and prints what a 100k-step reset-free PointUMaze run costs at train ratio 2.
 """
 
 from __future__ import annotations
 
 import argparse
-import ast
+import os
+import re
+import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -34,11 +45,18 @@ from sb3_gcrl.callbacks import ResetFreeCallback
 from sb3_gcrl.morefree import CPU_NETWORK, THESIS_NETWORK, MoReFree, morefree_go_explore
 from sb3_gcrl.wrappers import ResetFreeWrapper
 
-#: algorithm settings of the two presets (networks: CPU_NETWORK / THESIS_NETWORK)
-PRESETS = {
-    "cpu": {"batch_size": 16, "batch_length": 32, "imagination_horizon": 15, "imagination_starts": 64},
-    "thesis": {"batch_size": 50, "batch_length": 50, "imagination_horizon": 15, "imagination_starts": None},
+#: (network, algorithm settings, timed steps per repeat) of each setting
+SETTINGS: dict[str, tuple[dict[str, Any], dict[str, Any], int]] = {
+    "cpu": (CPU_NETWORK, {"batch_size": 16, "batch_length": 32, "imagination_starts": 128}, 20),
+    "cpu-full": (CPU_NETWORK, {"batch_size": 16, "batch_length": 32, "imagination_starts": None}, 10),
+    "thesis": (THESIS_NETWORK, {"batch_size": 45, "batch_length": 50, "imagination_starts": None}, 2),
 }
+VARIANTS = {
+    "eager": {"compile_train_step": False, "mixed_precision": False},
+    "compiled": {"compile_train_step": True, "mixed_precision": False},
+    "compiled-bf16": {"compile_train_step": True, "mixed_precision": True},
+}
+SHEEPRL_SCRIPT = Path(__file__).resolve().parent / "bench_sheeprl_dreamer.py"
 
 
 def make_env(env: gym.Env) -> gym.Env:
@@ -48,133 +66,132 @@ def make_env(env: gym.Env) -> gym.Env:
     )
 
 
-def evaluate(model: MoReFree, task: str, episodes: int) -> tuple[float, float]:
-    """Deterministic pi_G (latent filtered across the episode): (success rate, mean final goal distance)."""
-    if task == "growingtree":
-        env = gym.make("GCRL/GrowingTreeGoal-v0")
-        options = [{"goal": g} for g in (-1.0, 0.5, 1.0, 1.5)]
-    else:
-        env = gym.make("GCRL/PointUMazeGoal-v0")
-        options = [None] * episodes
-    successes, distances = [], []
-    for k, option in enumerate(options):
-        obs, _ = env.reset(seed=1000 + k, options=option)
-        start, done, info = True, False, {}
-        while not done:
-            action, _ = model.predict(obs, episode_start=np.array([start]), deterministic=True)
-            obs, _, terminated, truncated, info = env.step(action)
-            start, done = False, terminated or truncated
-        successes.append(float(info["is_success"]))
-        distances.append(float(np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"])))
-    return float(np.mean(successes)), float(np.mean(distances))
-
-
-def curve(
-    task: str,
-    steps: int,
-    eval_every: int,
-    episodes: int,
-    learning_starts: int,
-    seed: int,
-    overrides: dict[str, Any],
-    save: str | None,
-) -> None:
-    """Train the CPU preset on ``task`` and print the evaluation every ``eval_every`` env steps."""
-    algo = {"learning_starts": learning_starts, "train_ratio": 2, "policy_kwargs": dict(CPU_NETWORK), **PRESETS["cpu"]}
-    if task == "growingtree":
-        env = make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=seed)
-        callback = None
-    else:  # the shipped config: its wrappers and algorithm settings
-        import yaml
-        from rl_zoo3.utils import get_wrapper_class
-
-        config = Path(__file__).resolve().parents[1] / "zoo_configs" / "morefree_pointumaze_morefree_cpu.yml"
-        ((env_id, hyperparams),) = yaml.safe_load(config.read_text()).items()
-        env = make_vec_env(env_id, n_envs=1, seed=seed, wrapper_class=get_wrapper_class(hyperparams))
-        callback = ResetFreeCallback()
-        skip = ("n_timesteps", "policy", "env_wrapper", "callback")
-        algo = {k: v for k, v in hyperparams.items() if k not in skip}
-        algo["policy_kwargs"] = eval(algo["policy_kwargs"])  # RL-Zoo's convention: a dict literal in a string
-    model = MoReFree("MultiInputPolicy", env, seed=seed, device="cpu", **{**algo, **overrides})
-    wall, cpu = time.perf_counter(), time.process_time()
-    success, distance = evaluate(model, task, episodes)
-    print(f"steps 0: success {success:.2f}, final distance {distance:.3f}", flush=True)
-    while model.num_timesteps < steps:
-        model.learn(eval_every, callback=callback, reset_num_timesteps=False)
-        success, distance = evaluate(model, task, episodes)
-        print(
-            f"steps {model.num_timesteps}: success {success:.2f}, final distance {distance:.3f}, updates "
-            f"{model._n_updates}, wall {time.perf_counter() - wall:.0f} s, CPU {time.process_time() - cpu:.0f} s",
-            flush=True,
-        )
-    if save is not None:
-        model.save(save)
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
-    parser.add_argument("--device", default="cpu")
-    parser.add_argument("--num-threads", type=int, default=1)
-    parser.add_argument("--steps", type=int, default=2000, help="env steps timed (collection)")
-    parser.add_argument("--train-steps", type=int, default=50, help="training steps timed")
-    parser.add_argument("--repeats", type=int, default=3, help="repeats; medians are reported")
-    parser.add_argument("--curve", choices=("growingtree", "pointumaze"), help="train and print a success curve")
-    parser.add_argument("--eval-every", type=int, default=1000, help="--curve: env steps between evaluations")
-    parser.add_argument("--episodes", type=int, default=5, help="--curve pointumaze: evaluation episodes")
-    parser.add_argument("--learning-starts", type=int, default=1000, help="--curve: random prefill steps")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--set", nargs="*", default=[], help="--curve: MoReFree arguments, e.g. distance_warmup=0")
-    parser.add_argument("--save", help="--curve: save the trained model here")
-    args = parser.parse_args()
-    th.set_num_threads(args.num_threads)
-    if args.curve is not None:
-        overrides = {k: ast.literal_eval(v) for k, v in (item.split("=", 1) for item in args.set)}
-        curve(
-            args.curve,
-            args.steps,
-            args.eval_every,
-            args.episodes,
-            args.learning_starts,
-            args.seed,
-            overrides,
-            args.save,
-        )
-        return
-    network = CPU_NETWORK if args.preset == "cpu" else THESIS_NETWORK
+def build(setting: str, variant: str, device: str) -> MoReFree:
+    """An agent of ``setting`` on reset-free PointUMaze whose replay holds 600 steps and that has trained (and
+    compiled) already: what follows are steady-state steps."""
+    network, algo, _ = SETTINGS[setting]
     env = make_vec_env("GCRL/PointUMazeGoal-v0", n_envs=1, seed=0, wrapper_class=make_env)
     model = MoReFree(
         "MultiInputPolicy",
         env,
         learning_starts=500,
-        train_ratio=2,
+        train_ratio=10**9,  # no training inside learn: the steps are timed one by one below
         policy_kwargs=dict(network),
-        device=args.device,
+        device=device,
         seed=0,
-        **PRESETS[args.preset],
+        peg_samples=100,
+        peg_iterations=3,
+        **algo,
+        **VARIANTS[variant],
     )
-    # prefill (random actions), then collection with the learned actors and PEG goals
-    model.learning_starts = 500
-    model.train_ratio = 10**9  # collection only while timing env steps
     model.learn(600, callback=ResetFreeCallback())
-    env_rates, train_rates = [], []
-    for _ in range(args.repeats):
-        start = time.perf_counter()
-        model.learn(args.steps, callback=ResetFreeCallback(), reset_num_timesteps=False)
-        env_rates.append(args.steps / (time.perf_counter() - start))
-        start = time.perf_counter()
-        for _ in range(args.train_steps):
-            model.train()
-        if args.device != "cpu":
-            th.cuda.synchronize()
-        train_rates.append(args.train_steps / (time.perf_counter() - start))
-    env_rate, train_rate = float(np.median(env_rates)), float(np.median(train_rates))
-    ratio = 2
-    hours = (50_000 / env_rate + 50_000 / ratio / train_rate) / 3600
-    print(f"preset={args.preset} device={args.device} threads={args.num_threads} network={network}")
-    print(f"env steps/s (collection, no training): {env_rate:.0f}  (runs: {[round(r) for r in env_rates]})")
-    print(f"training steps/s: {train_rate:.2f}  (runs: {[round(r, 2) for r in train_rates]})")
-    print(f"50k PointUMaze steps at train ratio {ratio}: {hours:.2f} h of this process")
+    return model
+
+
+def time_steps(model: MoReFree, steps: int) -> tuple[float, float]:
+    """(wall, CPU) seconds per training step over ``steps`` steps."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    for _ in range(steps):
+        model.train()
+    if model.device.type == "cuda":
+        th.cuda.synchronize()
+    return (time.perf_counter() - wall) / steps, (time.process_time() - cpu) / steps
+
+
+def sheeprl_step(python: str, setting: str, steps: int) -> float | None:
+    """sheeprl's DreamerV3 train steps/s at the sizes of ``setting`` (one repeat), or None if it failed."""
+    network, algo, _ = SETTINGS[setting]
+    batch = algo["batch_size"]
+    # every posterior state starts an imagination in sheeprl: its full volume is batch x length starts
+    command = [
+        python,
+        str(SHEEPRL_SCRIPT),
+        f"--deter={network['deter']}",
+        f"--stoch={network['stoch']}",
+        "--classes=1",
+        f"--hidden={network['head_hidden']}",
+        f"--layers={network['head_layers']}",
+        f"--batch={batch}",
+        f"--length={algo['batch_length']}",
+        f"--steps={steps}",
+        "--repeats=1",
+        "--warmup=2",
+    ]
+    result = subprocess.run(command, capture_output=True, text=True, env=dict(os.environ), check=False)
+    match = re.search(r"SHEEPRL_TRAIN_STEPS_PER_S\s+([0-9.eE+-]+)", result.stdout)
+    if match is None:
+        print(f"sheeprl failed for {setting}: {result.stderr[-500:]}", file=sys.stderr)
+        return None
+    return float(match.group(1))
+
+
+def collection(steps: int, variant: str) -> float:
+    """Env steps/s of data collection with the CPU preset's trained-for-a-moment agent (no training)."""
+    model = build("cpu", variant, "cpu")
+    start = time.perf_counter()
+    model.learn(steps, callback=ResetFreeCallback(), reset_num_timesteps=False)
+    return steps / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--settings", nargs="*", default=list(SETTINGS), choices=list(SETTINGS))
+    parser.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument("--repeats", type=int, default=3, help="repeats; medians are reported")
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--sheeprl-python", help="python of a venv with sheeprl 0.8.4 (the DreamerV3 reference)")
+    parser.add_argument("--collect", action="store_true", help="also time data collection (CPU preset)")
+    args = parser.parse_args()
+    th.set_num_threads(1)
+
+    print(f"one thread, device {args.device}, load before: {os.getloadavg()[0]:.1f}")
+    print("| setting | step | train steps/s (median) | CPU s per step | set-up + compile s | runs (steps/s) |")
+    print("|---|---|---|---|---|---|")
+    for setting in args.settings:
+        steps = SETTINGS[setting][2]
+        models: dict[str, MoReFree] = {}
+        setup: dict[str, float] = {}
+        for variant in args.variants:
+            start = time.perf_counter()
+            models[variant] = build(setting, variant, args.device)
+            models[variant].train()  # the first step compiles
+            setup[variant] = time.perf_counter() - start
+        rates: dict[str, list[float]] = {name: [] for name in [*args.variants, "sheeprl"]}
+        cpu_per_step: dict[str, list[float]] = {name: [] for name in args.variants}
+        for _ in range(args.repeats):  # alternate: every repeat times every step once
+            for variant, model in models.items():
+                wall, cpu = time_steps(model, steps)
+                rates[variant].append(1 / wall)
+                cpu_per_step[variant].append(cpu)
+            if args.sheeprl_python and SETTINGS[setting][1]["imagination_starts"] is None:  # equal volume only
+                rate = sheeprl_step(args.sheeprl_python, setting, steps)
+                if rate is not None:
+                    rates["sheeprl"].append(rate)
+        for name, runs in rates.items():
+            if not runs:
+                continue
+            cpu = f"{np.median(cpu_per_step[name]):.3f}" if name in cpu_per_step else "(sheeprl's own timing)"
+            built = f"{setup[name]:.0f}" if name in setup else "-"
+            label = "sheeprl DreamerV3" if name == "sheeprl" else name
+            print(
+                f"| {setting} | {label} | {np.median(runs):.2f} | {cpu} | {built} | "
+                f"{', '.join(f'{r:.2f}' for r in runs)} |",
+                flush=True,
+            )
+        if rates["sheeprl"]:
+            sheeprl = float(np.median(rates["sheeprl"]))
+            best = max(args.variants, key=lambda v: float(np.median(rates[v])))
+            print(f"| {setting} | ratio {best} / sheeprl | {float(np.median(rates[best])) / sheeprl:.2f}x | | | |")
+    if args.collect:
+        variant = args.variants[-1]
+        env_rate = collection(3000, variant)
+        models = {variant: build("cpu", variant, "cpu")}
+        models[variant].train()
+        train_rate = 1 / float(np.median([time_steps(models[variant], 20)[0] for _ in range(args.repeats)]))
+        hours = (100_000 / env_rate + 50_000 / train_rate) / 3600
+        print(f"collection: {env_rate:.0f} env steps/s; CPU preset {variant}: {train_rate:.1f} train steps/s")
+        print(f"100k reset-free PointUMaze steps at train ratio 2 (50k training steps): {hours:.2f} h of one core")
+    print(f"load after: {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

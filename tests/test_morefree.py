@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch as th
 from envs import MOREFREE_TINY_NET
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
@@ -458,6 +459,18 @@ def test_invalid_spaces_and_hyperparameters_are_refused():
         MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", distance_warmup=-1)
     with pytest.raises(TypeError, match="distance_on_replay"):
         MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", distance_on_replay="yes")
+    with pytest.raises(ValueError, match="peg_elite_fraction"):
+        MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", peg_elite_fraction=0.0)
+    with pytest.raises(TypeError, match="compile_train_step"):
+        MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", compile_train_step="yes")
+    with pytest.raises(ValueError, match="n_threads"):
+        MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", n_threads=0)
+    with pytest.raises(ValueError, match="head_hidden"):
+        tiny("GCRL/GrowingTreeGoal-v0", policy_kwargs={**TINY, "head_hidden": 0})
+    with pytest.raises(ValueError, match="ensemble_size"):
+        tiny("GCRL/GrowingTreeGoal-v0", policy_kwargs={**TINY, "ensemble_size": 1})
+    with pytest.raises(ValueError, match="actor_lr"):
+        tiny("GCRL/GrowingTreeGoal-v0", policy_kwargs={**TINY, "actor_lr": 0.0})
     with pytest.raises(ValueError, match="exploratory"):
         morefree_go_explore(ResetFreeWrapper(gym.make("GCRL/GrowingTreeGoal-v0"), eval_horizon=20), exploratory="x")
 
@@ -699,7 +712,7 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
         return feats, th.zeros(2, len(feat), 1), th.zeros(2, len(feat))
 
     monkeypatch.setattr(model, "_imagine", imagine)
-    monkeypatch.setattr(model, "_goal_rewards", lambda feats, goals: th.zeros(feats.shape[0] - 1, feats.shape[1]))
+    monkeypatch.setattr(model, "_goal_rewards", lambda achieved, goals: th.zeros(achieved.shape[0] - 1, len(goals)))
     monkeypatch.setattr(model.policy.critic_g, "forward", lambda feat, goal: 2 * feat[..., 0])
     monkeypatch.setattr(model.policy.critic_g_target, "forward", lambda feat, goal: 2 * feat[..., 0])
     model.gamma, model.lambda_ = 1.0, 1.0
@@ -723,3 +736,35 @@ def test_compiled_train_step_matches_the_eager_one():
         params.append(th.nn.utils.parameters_to_vector(model.policy.parameters()).detach())
     assert model._n_updates == 4
     th.testing.assert_close(params[0], params[1], rtol=1e-4, atol=1e-5)
+
+
+def test_mixed_precision_trains_the_agent_in_bfloat16_with_float32_distributions():
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), mixed_precision=True)
+    before = th.nn.utils.parameters_to_vector(model.policy.parameters()).detach().clone()
+    with th.autocast("cpu", dtype=th.bfloat16):
+        dist = model.policy.actor_g(th.zeros(3, model.policy.world_model.feat_dim), th.zeros(3, 1))
+        assert dist.loc.dtype == th.float32 and dist.entropy().dtype == th.float32
+    model.learn(200)
+    after = th.nn.utils.parameters_to_vector(model.policy.parameters()).detach()
+    assert model._n_updates > 10 and th.isfinite(after).all() and not th.equal(before, after)
+    assert all(p.dtype == th.float32 for p in model.policy.parameters())
+
+
+def test_learn_runs_on_n_threads_and_restores_torchs_setting():
+    seen = []
+
+    class Threads(BaseCallback):
+        def _on_step(self) -> bool:
+            seen.append(th.get_num_threads())
+            return True
+
+    previous = th.get_num_threads()
+    th.set_num_threads(2)
+    try:
+        tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), n_threads=1).learn(20, callback=Threads())
+        assert set(seen) == {1} and th.get_num_threads() == 2
+        seen.clear()
+        tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), n_threads=None).learn(20, callback=Threads())
+        assert set(seen) == {2}
+    finally:
+        th.set_num_threads(previous)

@@ -150,7 +150,8 @@ def critic_calibration(model: MoReFree, n_starts: int = 512, seed: int = 0) -> f
     with th.no_grad():
         feats, _, _ = model._imagine(latent, goals)
         feats_g = feats[:, : goals.shape[0]]
-        returns = model._returns(feats_g, model._goal_rewards(feats_g, goals), policy.critic_g_target, goals)
+        rewards = model._goal_rewards(policy.world_model.decode_goal(feats_g), goals)
+        returns = model._returns(feats_g, rewards, policy.critic_g_target, goals)
         values = policy.critic_g(feats_g[0], goals)
     spread = returns[0].std().item()
     return float(values.std().item() / spread) if spread > 0 else float("nan")

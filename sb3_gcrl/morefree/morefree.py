@@ -128,6 +128,7 @@ class MoReFree(BaseAlgorithm):
         peg_horizon: int | None = None,
         compile_train_step: bool = False,
         mixed_precision: bool = False,
+        n_threads: int | None = 1,
         policy_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
@@ -205,6 +206,9 @@ class MoReFree(BaseAlgorithm):
         if not isinstance(mixed_precision, bool):
             raise TypeError(f"mixed_precision must be a bool, got {mixed_precision!r}")
         self.mixed_precision = mixed_precision
+        if n_threads is not None and n_threads < 1:
+            raise ValueError(f"n_threads must be >= 1 or None, got {n_threads!r}")
+        self.n_threads = n_threads
         self._n_updates = 0
         self._rng = np.random.default_rng(seed)
         if _init_setup_model:
@@ -576,11 +580,10 @@ class MoReFree(BaseAlgorithm):
         steps = returns.shape[0]
         return self.gamma ** th.arange(steps, device=returns.device, dtype=returns.dtype).unsqueeze(-1)
 
-    def _goal_rewards(self, feats: th.Tensor, goals: th.Tensor) -> th.Tensor:
-        """pi_G's reward ``-D(decoded achieved goal of s_{t+1}, g)`` for ``feats (H + 1, N, F)``: ``(H, N)``."""
-        policy = self.policy
-        achieved = policy.world_model.decode_goal(feats[1:])
-        return -policy.distance(achieved, goals.unsqueeze(0).expand(achieved.shape[0], *goals.shape))
+    def _goal_rewards(self, achieved: th.Tensor, goals: th.Tensor) -> th.Tensor:
+        """pi_G's reward ``-D(achieved goal of s_{t+1}, g)`` from the decoded achieved goals ``(H + 1, N, G)`` of an
+        imagined path: ``(H, N)``."""
+        return -self.policy.distance(achieved[1:], goals.unsqueeze(0).expand(achieved.shape[0] - 1, *goals.shape))
 
     @property
     def distance_unit(self) -> int:
@@ -621,13 +624,15 @@ class MoReFree(BaseAlgorithm):
 
         :param start: imagination start states (flat batch, detached).
         :param goals: symlog goals of pi_G, one per start.
-        :return: (summed actor loss, detached (pi_G features, pi_E features, pi_G returns, pi_E returns), metrics).
+        :return: (summed actor loss, detached (pi_G features, pi_E features, pi_G returns, pi_E returns, pi_G's
+            decoded achieved goals), metrics).
         """
         policy = self.policy
         n = goals.shape[0]
         feats, actions, entropies = self._imagine(start, goals)
         feats_g, feats_e = feats[:, :n], feats[:, n:]
-        rewards_g = self._goal_rewards(feats_g, goals)
+        achieved = policy.world_model.decode_goal(feats_g)
+        rewards_g = self._goal_rewards(achieved, goals)
         rewards_e = self.expl_reward_scale * policy.ensemble.disagreement(feats_e[:-1], actions[:, n:])
         returns_g = self._returns(feats_g, rewards_g, policy.critic_g_target, goals)
         returns_e = self._returns(feats_e, rewards_e, policy.critic_e_target, None)
@@ -642,7 +647,7 @@ class MoReFree(BaseAlgorithm):
             "action_g_abs": actions[:, :n].abs().mean(),
             "entropy_g": entropies[:, :n].mean(),
         }
-        imagined = tuple(x.detach() for x in (feats_g, feats_e, returns_g, returns_e))
+        imagined = tuple(x.detach() for x in (feats_g, feats_e, returns_g, returns_e, achieved))
         return actor_g_loss + actor_e_loss, imagined, {k: v.detach() for k, v in metrics.items()}
 
     def _learner_losses(
@@ -658,7 +663,8 @@ class MoReFree(BaseAlgorithm):
         D is trained on pairs of the imagined pi_G trajectories' decoded achieved goals (LEXA / PEG) and, with
         ``replay_pairs``, on pairs of achieved goals of the replayed streams, in one unit (:attr:`distance_unit`).
 
-        :param imagined: detached (pi_G features, pi_E features, pi_G returns, pi_E returns).
+        :param imagined: detached (pi_G features, pi_E features, pi_G returns, pi_E returns, pi_G's decoded achieved
+            goals).
         :param goals: symlog goals of pi_G.
         :param groups: replayed sequence of each start (negatives of the distance come from other sequences).
         :param replay_pairs: (symlog earlier goals, symlog later goals, steps between them, 0/1 validity) of
@@ -666,11 +672,9 @@ class MoReFree(BaseAlgorithm):
         :return: (summed loss, detached metrics).
         """
         policy = self.policy
-        feats_g, feats_e, returns_g, returns_e = imagined
+        feats_g, feats_e, returns_g, returns_e, imagined_goals = imagined
         critic_g_loss = self._critic_loss(policy.critic_g, feats_g, returns_g, goals)
         critic_e_loss = self._critic_loss(policy.critic_e, feats_e, returns_e, None)
-        with th.no_grad():
-            imagined_goals = policy.world_model.decode_goal(feats_g)
         unit = self.distance_unit
         distance_loss = policy.distance.trajectory_loss(
             imagined_goals, self.distance_pairs, unit, self.distance_neg_fraction, groups=groups
@@ -796,6 +800,9 @@ class MoReFree(BaseAlgorithm):
             total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
         )
         callback.on_training_start(locals(), globals())
+        threads = th.get_num_threads()
+        if self.n_threads is not None:
+            th.set_num_threads(self.n_threads)
         self._attach()
         if self._last_obs is not self._stream_obs or self._latent is None:
             self._start_streams()
@@ -808,6 +815,7 @@ class MoReFree(BaseAlgorithm):
                     self.train()
         finally:
             self._detach()
+            th.set_num_threads(threads)
         self._dump_logs()
         callback.on_training_end()
         return self
