@@ -12,7 +12,9 @@ radius of a sample of rho_0 or rho_g*) and how close the training data came to r
 distance to a rho_g* sample, beside the success radius), both computed from the achieved goals ``sb3-gcrl compare``
 keeps per run (``visited_goals.npy``, up to 20,000 evenly spaced over training). The comparison folder holds the
 report, the curves and the Fig. 3.5-style heatmaps (``visitation_<env>.png``; Tabletop's shows the mug, as Fig. 3.9);
-the table is also written to ``ch3_summary.csv``.
+the table is also written to ``ch3_summary.csv``. For the world-model agents it also prints their probes over training
+(distance vs shortest path, goal sensitivity, critic calibration: ``sb3_gcrl.morefree.diagnostics``, logged by the
+PointUMaze CPU configs every 10k steps), mean over seeds, and writes them to ``ch3_diagnostics.csv``.
 
 Example (what docs/results.md quotes)::
 
@@ -95,6 +97,34 @@ def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
             }
         )
     return pd.DataFrame(rows)
+
+
+def diagnostics_table(output: Path) -> pd.DataFrame:
+    """The world-model agents' probes over training (``MoReFreeDiagnosticsCallback`` lines of each run's log):
+    one row per run and probe."""
+    from sb3_gcrl.compare.run import RunSpec
+    from sb3_gcrl.compare.storage import LOG_FILE
+    from sb3_gcrl.morefree.diagnostics import parse_diagnostics
+
+    rows = []
+    for spec in (RunSpec.from_dict(s) for s in json.loads((output / "comparison.json").read_text())["specs"]):
+        log = output / "runs" / spec.relative_dir / LOG_FILE
+        if not log.is_file():
+            continue
+        for step, figures in parse_diagnostics(log.read_text(errors="replace")):
+            rows.append({"env": spec.env_id, "method": spec.method, "seed": spec.seed, "timesteps": step, **figures})
+    return pd.DataFrame(rows)
+
+
+def print_diagnostics(table: pd.DataFrame) -> None:
+    """Mean over seeds of every probe, per method and env step (the world-model agents only)."""
+    figures = [c for c in table.columns if c not in ("env", "method", "seed", "timesteps")]
+    for (env_id, method), rows in table.groupby(["env", "method"], sort=False):
+        print(f"{env_id} {method}: probes over training, mean over seeds (seeds probed)")
+        print("| env steps | " + " | ".join(figures) + " | seeds |")
+        print("|---" * (len(figures) + 2) + "|")
+        for step, at in rows.groupby("timesteps"):
+            print(f"| {step:,} | " + " | ".join(f"{at[f].mean():.2f}" for f in figures) + f" | {len(at)} |")
 
 
 def print_table(table: pd.DataFrame) -> None:
@@ -185,6 +215,10 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     table.to_csv(args.out / "ch3_summary.csv", index=False)
     print_table(table)
+    probes = diagnostics_table(args.out)
+    if not probes.empty:
+        probes.to_csv(args.out / "ch3_diagnostics.csv", index=False)
+        print_diagnostics(probes)
     print(f"wrote {args.out / 'ch3_summary.csv'}; report, curves and heatmaps in {args.out}")
     return 1 if failed else 0
 

@@ -680,7 +680,9 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
         MoReFreeDiagnosticsCallback,
         critic_calibration,
         distance_rank_correlation,
+        format_diagnostics,
         goal_sensitivity,
+        parse_diagnostics,
         true_distance,
     )
 
@@ -689,6 +691,12 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
     callback = MoReFreeDiagnosticsCallback(diagnose_freq=50, n=32)
     model.learn(200, callback=callback)
     assert [t for t, _ in callback.history] == [50, 100, 150, 200]
+    printed = "\n".join(["eval@0: something else", *(format_diagnostics(t, f) for t, f in callback.history)])
+    parsed = parse_diagnostics(printed)
+    assert [t for t, _ in parsed] == [50, 100, 150, 200]
+    for (_, figures), (_, read) in zip(callback.history, parsed):
+        assert read.keys() == figures.keys()
+        np.testing.assert_allclose(list(read.values()), list(figures.values()), atol=1e-4)
     assert set(callback.history[0][1]) >= {"distance_rank_correlation", "goal_sensitivity", "critic_calibration"}
     # (a) a distance equal to the true one (|a - g| on GrowingTree) correlates perfectly; its negative at -1
     base = env.envs[0].unwrapped

@@ -13,8 +13,9 @@ Three figures, each computed on the agent's own replay data:
   of their lambda-returns. About 1: the critic follows the returns it regresses; near 0: a flat critic whose
   bootstrap gives pi_G no long-horizon gradient.
 
-:class:`MoReFreeDiagnosticsCallback` logs them under ``diagnostics/`` during training;
-``scripts/diagnose_morefree.py`` prints them for a run or a saved model.
+:class:`MoReFreeDiagnosticsCallback` logs them under ``diagnostics/`` during training (and prints them with
+``verbose=1``, a line :func:`parse_diagnostics` reads back); ``scripts/diagnose_morefree.py`` prints them for a run or
+a saved model.
 """
 
 from __future__ import annotations
@@ -170,6 +171,28 @@ def diagnose(model: MoReFree, env: Any, n: int = 512, seed: int = 0) -> dict[str
     }
 
 
+#: what starts the line :class:`MoReFreeDiagnosticsCallback` prints with ``verbose=1`` (read back by
+#: :func:`parse_diagnostics`, e.g. from a comparison run's ``train.log``)
+LINE_PREFIX = "diagnostics at "
+
+
+def format_diagnostics(step: int, figures: dict[str, float]) -> str:
+    """The printed line of one probe: ``diagnostics at <step>: <name> <value>, ...``."""
+    return f"{LINE_PREFIX}{step}: " + ", ".join(f"{name} {value:.4f}" for name, value in figures.items())
+
+
+def parse_diagnostics(text: str) -> list[tuple[int, dict[str, float]]]:
+    """The probes printed in ``text`` (lines of :func:`format_diagnostics`), in order."""
+    probes = []
+    for line in text.splitlines():
+        if not line.startswith(LINE_PREFIX):
+            continue
+        step, _, rest = line[len(LINE_PREFIX) :].partition(": ")
+        pairs = (item.rsplit(" ", 1) for item in rest.split(", ") if item)
+        probes.append((int(step), {name: float(value) for name, value in pairs}))
+    return probes
+
+
 class MoReFreeDiagnosticsCallback(BaseCallback):
     """Log :func:`diagnose` under ``diagnostics/`` every ``diagnose_freq`` env steps once training has started.
 
@@ -200,5 +223,5 @@ class MoReFreeDiagnosticsCallback(BaseCallback):
         for name, value in figures.items():
             self.logger.record(f"diagnostics/{name}", value)
         if self.verbose >= 1:
-            print(f"diagnostics at {self.num_timesteps}: " + ", ".join(f"{k} {v:.3f}" for k, v in figures.items()))
+            print(format_diagnostics(self.num_timesteps, figures), flush=True)
         return True
