@@ -4,12 +4,10 @@ The Back-and-Forth schedule (Algorithm 3) and the Go/Explore phases (Algorithm 1
 implementation (:class:`~sb3_gcrl.goals.BackAndForthScheduler`, :class:`~sb3_gcrl.wrappers.GoExploreWrapper`);
 this module only plugs the agent into them:
 
-* :class:`PEGScheduler`: the exploratory goal distribution rho_E. Candidate goals are drawn uniformly from the
-  agent's replay buffer (achieved goals of stored states); each is scored with the explorer's value V_E of the
-  state pi_G reaches when commanded that goal, imagined through the world model from the current state for
-  ``plan_horizon`` steps (PEG's objective, with random-shooting over replay candidates instead of MPPI); the best
-  goal is commanded. Before the agent is attached or has data, goals come from a fallback scheduler (count-based
-  novelty).
+* :class:`PEGScheduler`: the exploratory goal distribution rho_E, planned by the agent
+  (:meth:`~sb3_gcrl.morefree.MoReFree.plan_exploratory_goal`: PEG's cross-entropy search over goal space, scoring
+  each goal by the explorer's returns along pi_G's imagined path toward it). Before the agent is attached or has
+  data, goals come from a fallback scheduler (count-based novelty).
 * :class:`AgentExploreAction`: the ``explore_policy`` of the Go/Explore wrapper that executes the action the agent
   chose with pi_E (the agent fills it before each step).
 * :func:`morefree_go_explore`: ``env_wrapper`` entry that builds both into a :class:`GoExploreWrapper`.

@@ -1,14 +1,15 @@
 """MoReFree on a world model (thesis Ch. 3, Algorithms 1-3, Sec. 3.3.2 and 3.4): an SB3 ``BaseAlgorithm``.
 
-Every ``train_ratio`` env steps (thesis Table 3.2) one training step runs (Algorithm 2, lines 10-14):
+Built as PEG's state-input agent (LEXA / DreamerV2 underneath). Every ``train_ratio`` env steps (thesis Table 3.2)
+one training step runs (Algorithm 2, lines 10-14):
 
 1. the world model (:class:`~sb3_gcrl.morefree.networks.WorldModel`) on ``batch_size`` chunks of
-   ``batch_length`` replayed steps; the Plan2Explore ensemble on the same posteriors;
-2. pi_G / V_G in imagination from the posterior states, toward goals drawn w.p. alpha/2 from rho_0, alpha/2 from
-   rho_g* and 1 - alpha uniformly from replayed states (Sec. 3.4.2), with the reward -D(s, g) of the dynamical
-   distance network, which is then trained on those imagined trajectories and on the replayed chunks (pi_G's
-   actor waits ``distance_warmup`` training steps for it);
-3. pi_E / V_E in imagination with the ensemble's disagreement as reward.
+   ``batch_length`` replayed steps, and the Plan2Explore ensemble on the same posteriors;
+2. pi_G and pi_E in imagination from the posterior states, in one batch: pi_G toward goals drawn w.p. alpha/2
+   from rho_0, alpha/2 from rho_g* and 1 - alpha uniformly from replayed states (Sec. 3.4.2), rewarded with
+   ``-D(achieved goal, g)`` of the dynamical distance; pi_E with the ensemble's disagreement; then both critics and
+   D (on pairs of the imagined pi_G paths and of the replayed streams). pi_G's actor waits ``distance_warmup``
+   training steps.
 
 Actors learn by backpropagating lambda-returns through the model (DreamerV2's ``dynamics`` gradient for
 continuous actions) with an entropy bonus; critics regress the lambda-returns, bootstrapped from slow target
@@ -17,7 +18,8 @@ critics. The environment's reward and ``compute_reward`` are never read for trai
 Data collection: in the Go phase of a :class:`~sb3_gcrl.wrappers.GoExploreWrapper` (or with no such wrapper) the
 agent acts with pi_G toward the observation's ``desired_goal`` (the commanded goal); in the Explore phase with
 pi_E (executed through :class:`~sb3_gcrl.morefree.goals.AgentExploreAction`). Exploratory goals come from
-:class:`~sb3_gcrl.morefree.goals.PEGScheduler`, which calls :meth:`MoReFree.plan_exploratory_goal`.
+:class:`~sb3_gcrl.morefree.goals.PEGScheduler`, which calls :meth:`MoReFree.plan_exploratory_goal` (PEG's
+cross-entropy planner). docs/morefree.md lists where this departs from PEG and why.
 """
 
 from __future__ import annotations
@@ -50,41 +52,56 @@ DEFAULT_ALPHA = 0.2
 
 
 class MoReFree(BaseAlgorithm):
-    """Model-based reset-free goal-conditioned agent (MoReFree, thesis Ch. 3) on a DreamerV2-style world model.
+    """Model-based reset-free goal-conditioned agent (MoReFree, thesis Ch. 3), PEG's state-input agent.
+
+    Defaults are PEG's point-maze settings (the thesis preset); the CPU preset is in
+    ``zoo_configs/morefree_*_cpu.yml``.
 
     :param policy: ``"MultiInputPolicy"`` / ``"MoReFreePolicy"`` or the class.
     :param env: goal env (Dict observation, Box actions); for reset-free training wrap it with
         :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` and :func:`~sb3_gcrl.morefree.morefree_go_explore` and pass
         :class:`~sb3_gcrl.callbacks.ResetFreeCallback` to ``learn``.
-    :param learning_rate: world-model (and ensemble) learning rate (DreamerV2: 3e-4).
+    :param learning_rate: world-model learning rate (PEG: 3e-4).
     :param buffer_size: replay rows (all envs together).
-    :param learning_starts: env steps of uniform random actions before training (Dreamer's prefill).
-    :param batch_size: sequences per world-model batch (DreamerV2/PEG: 50).
-    :param batch_length: steps per sequence (DreamerV2/PEG: 50).
+    :param learning_starts: env steps of uniform random actions before training (PEG's prefill: 2500 steps).
+    :param batch_size: sequences per world-model batch (PEG: 45).
+    :param batch_length: steps per sequence (PEG: 50).
     :param train_ratio: env steps per training step, thesis Table 3.2 (PointUMaze 2, Sawyer Door 5, Tabletop 1,
-        Fetch tasks and Ant 2).
-    :param imagination_horizon: imagined steps per start state (DreamerV2: 15).
+        Fetch tasks and Ant 2; PEG: 5).
+    :param imagination_horizon: imagined steps per start state (PEG: 15).
     :param imagination_starts: posterior states used as imagination starts per training step (``None``: all
-        ``batch_size * batch_length``); fewer is faster on CPU.
-    :param gamma: discount in imagination (DreamerV2: 0.99).
-    :param lambda_: TD(lambda) parameter (DreamerV2: 0.95).
+        ``batch_size * batch_length``, as PEG); fewer is faster on CPU.
+    :param gamma: discount in imagination (PEG: 0.99).
+    :param lambda_: TD(lambda) parameter (PEG: 0.95).
     :param imagination_alpha: share alpha of task-relevant imagination goals (alpha/2 rho_0, alpha/2 rho_g*);
         ``None`` reads alpha from the env's Back-and-Forth scheduler (stated once, there), or 0.2 (thesis) when the
         env has none. Set it to 0 for "MF w/o Imag." and to 0.2 with an ``alpha=0`` env for "MF w/o BF-GE".
-    :param entropy_coef: actor entropy bonus (DreamerV2: 1e-4).
-    :param target_update_interval: training steps between copies into the slow critics (DreamerV2: 100).
-    :param expl_reward_scale: scale of the disagreement reward of pi_E.
-    :param distance_neg_fraction: share of negative (cross-trajectory) pairs of the distance loss (LEXA: 0.1).
-    :param distance_on_replay: also train the distance on pairs of the replayed sequences (behaviour data, which
-        covers the directions the current pi_G does not take), besides LEXA's pairs of imagined pi_G trajectories.
-        Without them pi_G exploits the young distance, drives every trajectory one way, and D, trained only on those
-        trajectories, never learns the distances back (see docs/morefree.md).
+    :param entropy_coef: actor entropy bonus (PEG's point maze: 1e-4; DreamerV2: 2e-3).
+    :param target_update_interval: training steps between copies into the slow critics (PEG: 100).
+    :param expl_reward_scale: scale of the disagreement reward of pi_E (PEG: 1).
+    :param distance_pairs: pairs of each source (imagined paths, replayed streams) per distance update (PEG's
+        ``dd_num_positives``: 256).
+    :param distance_neg_fraction: negatives per positive pair of the distance loss, target one step beyond the
+        longest positive (PEG's ``dd_neg_sampling_factor``: 0 in its point maze, 0.1 elsewhere).
+    :param distance_on_replay: also train the distance on pairs of the replayed streams up to
+        :attr:`distance_unit` steps apart (behaviour data that spans the task, where PEG's imagined pairs span 15
+        steps; see docs/morefree.md).
+    :param distance_window: steps that make distance 1, and the longest gap of the replayed pairs (``None``: the
+        Go-phase length H_G with ``distance_on_replay``, else ``imagination_horizon``, PEG's unit).
     :param distance_warmup: training steps in which the distance, world model and critics learn but pi_G does
-        not, so that pi_G never follows an untrained distance's random slopes into a saturated action.
-    :param peg_candidates: candidate goals scored per PEG goal.
-    :param peg_horizon: imagined steps of pi_G toward each candidate before V_E scores it (``None``: the Go-phase
-        length H_G of the env's Go/Explore wrapper, else ``imagination_horizon``).
-    :param policy_kwargs: keyword arguments of :class:`~sb3_gcrl.morefree.policies.MoReFreePolicy` (network sizes).
+        not, so that pi_G does not follow an untrained distance's slopes into a saturated action.
+    :param peg_samples: goals scored per round of PEG's cross-entropy planner (PEG: 500).
+    :param peg_iterations: rounds of the planner (PEG: 5).
+    :param peg_elite_fraction: share of the best goals the planner refits to (PEG: 0.2).
+    :param peg_horizon: imagined steps of pi_G toward each candidate goal (``None``: the Go-phase length H_G of the
+        env's Go/Explore wrapper, as PEG, else ``imagination_horizon``).
+    :param compile_train_step: compile the step's loss computations with ``torch.compile`` (once per process, on the
+        first training step; minutes on a CPU, then about 2x faster there).
+    :param mixed_precision: bfloat16 matrix products (PEG's ``precision: 16``); distributions and losses in float32.
+    :param n_threads: torch intra-op threads while learning (``None``: leave torch's setting, e.g. RL-Zoo's
+        ``--num-threads``).
+    :param policy_kwargs: keyword arguments of :class:`~sb3_gcrl.morefree.policies.MoReFreePolicy` (network sizes,
+        learning rates of the other learners).
     :param stats_window_size: episodes in the rollout statistics.
     :param tensorboard_log: tensorboard log folder.
     :param verbose: verbosity.
