@@ -11,6 +11,7 @@ gradient step), the test says so instead of skipping silently.
 from __future__ import annotations
 
 import io
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +36,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
@@ -526,6 +528,22 @@ def test_progress_bar_logger_and_tensorboard_run_name(name: str, tmp_path: Path)
     model.learn(N_STEPS, reset_num_timesteps=False, log_interval=1)
     lines = (tmp_path / "csv" / "progress.csv").read_text().splitlines()
     assert len(lines) >= 2 and "time/total_timesteps" in lines[0]
+
+
+@pytest.mark.parametrize("name", sorted(n for n, case in CASES.items() if issubclass(case.cls, OffPolicyAlgorithm)))
+def test_a_budget_within_learning_starts_warns_that_nothing_is_trained(name: str):
+    model = CASES[name].make(learning_starts=40)
+    with pytest.warns(UserWarning, match=r"budget of 20 timesteps is <= learning_starts=40") as record:
+        model.learn(20)
+    assert [w.filename for w in record if "learning_starts" in str(w.message)] == [__file__]  # the caller's line
+    done = model.num_timesteps
+    with pytest.warns(UserWarning, match=rf"{40 - done} \+ {done} already done = 40 timesteps"):
+        model.learn(40 - done, reset_num_timesteps=False)  # SB3 counts the steps already done into the budget
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        model.learn(1, reset_num_timesteps=False)
+        model.learn(41)
+    assert not [w for w in record if "learning_starts" in str(w.message)]
 
 
 # ---------------------------------------------------------------------------------------------------- envs
