@@ -6,7 +6,8 @@ zoo's algorithm table (``rl_zoo3.utils.ALGOS``, the dict that both scripts read)
 imported through ``--gym-packages`` comes too late: the zoo fixes ``--algo`` choices when it builds its
 parser. When ``--algo`` names one of our algorithms and no ``-conf`` is given, the hyperparameters are
 read from the shipped ``zoo_configs/<algo>.yml`` instead of the zoo's own (which has none for them), and
-``-conf`` also takes the name of a shipped config (``sb3-gcrl list-configs``).
+``-conf`` also takes the name of a shipped config (``sb3-gcrl list-configs``). A ``-conf`` section (with the
+``-params`` overrides) whose keys the algorithm does not take is refused before training, with close matches.
 """
 
 from __future__ import annotations
@@ -147,25 +148,48 @@ def train(argv: list[str]) -> int:
     from rl_zoo3.train import train as zoo_train
 
     argv = _with_default_config(argv)
-    _check_config_callbacks(argv)
+    _check_config(argv)
     return _run_zoo_script(zoo_train, "sb3-gcrl train", argv)
 
 
-def _check_config_callbacks(argv: list[str]) -> None:
-    """Stop before training when ``-conf`` uses a mode-switched wrapper without its callback (see zoo_config)."""
-    from sb3_gcrl.zoo_config import check_mode_switching_callbacks, zoo_config_section
+def _override_keys(argv: Sequence[str]) -> list[str]:
+    """Keys of the ``-params`` / ``--hyperparams`` overrides (``key:value`` words after the flag) in ``argv``."""
+    keys = []
+    for i, arg in enumerate(argv):
+        if arg not in ("-params", "--hyperparams"):
+            continue
+        for word in argv[i + 1 :]:
+            if word.startswith("-"):
+                break
+            keys.append(word.split(":", 1)[0])
+    return keys
+
+
+def _check_config(argv: list[str]) -> None:
+    """Stop before training when ``-conf`` (with the ``-params`` overrides) has a key that the algorithm does not
+    take (:func:`~sb3_gcrl.zoo_config.check_hyperparameters`, with close matches), or uses a mode-switched wrapper
+    without its callback (:func:`~sb3_gcrl.zoo_config.check_mode_switching_callbacks`)."""
+    from rl_zoo3.utils import ALGOS
+
+    from sb3_gcrl.algorithms import ALGORITHMS
+    from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks, zoo_config_section
 
     config, env_id = _option_value(argv, "-conf", "--conf-file"), _option_value(argv, "--env")
     if config is None or env_id is None or not Path(config).is_file():
         return  # RL-Zoo's own hyperparameters, or an error RL-Zoo reports itself
-    if any(arg.startswith(("callback:", "env_wrapper:")) for arg in argv):
-        return  # overridden with -params: RL-Zoo's merged hyperparameters are not known here
     section = zoo_config_section(Path(config), env_id)
-    if section is not None:
-        try:
+    if section is None:
+        return  # RL-Zoo reports the missing section itself
+    overrides = _override_keys(argv)
+    algo = _option_value(argv, "--algo")
+    try:
+        if algo in ALGORITHMS or algo in ALGOS:
+            merged = {**section, **dict.fromkeys(overrides)}
+            check_hyperparameters(algo, merged, f"{config} (section {env_id})", overrides)
+        if not {"callback", "env_wrapper"} & set(overrides):  # else RL-Zoo's merged values are not known here
             check_mode_switching_callbacks(section, f"{config} ({env_id})")
-        except ValueError as error:
-            raise SystemExit(f"sb3-gcrl train: {error}") from None
+    except ValueError as error:
+        raise SystemExit(f"sb3-gcrl train: {error}") from None
 
 
 def enjoy(argv: list[str]) -> int:

@@ -60,6 +60,21 @@ def test_our_algorithm_without_config_names_the_fix(tmp_path: Path, monkeypatch:
         main(["train", "--algo", "fake_algo", "--env", "Pendulum-v1", "-f", str(tmp_path)])
 
 
+def test_train_refuses_unknown_hyperparameters_before_training_with_close_matches(tmp_path: Path) -> None:
+    config = tmp_path / "typo.yml"
+    config.write_text("Pendulum-v1:\n  n_timesteps: 100\n  policy: MlpPolicy\n  lerning_rate: 0.001\n")
+    logs = tmp_path / "logs"
+    argv = ["train", "--algo", "sac", "--env", "Pendulum-v1", "-conf", str(config), "-f", str(logs)]
+    with pytest.raises(SystemExit, match=rf"'lerning_rate' \(did you mean 'learning_rate'.*\) from {config}"):
+        main(argv)
+    with pytest.raises(SystemExit, match=r"'gama' \(did you mean 'gamma'\?\) from --hyperparams"):
+        main([*argv, "-params", "gama:0.9", "learning_rate:0.01"])
+    config.write_text("default:\n  n_timesteps: 100\n  gama: 0.9\n")
+    with pytest.raises(SystemExit, match=r"for cec \(CEC\): 'gama' \(did you mean 'gamma'"):
+        main(["train", "--algo", "cec", "--env", "Pendulum-v1", "-conf", str(config), "-f", str(logs)])
+    assert not logs.exists()  # refused before RL-Zoo set anything up
+
+
 def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(args, cwd=cwd, capture_output=True, text=True, timeout=600)
 

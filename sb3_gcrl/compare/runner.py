@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import difflib
-import inspect
 import json
 import sys
 import time
@@ -18,28 +16,12 @@ from sb3_gcrl.compare.methods import Method, check_env_id, file_digest, parse_me
 from sb3_gcrl.compare.report import Summary, summarize, write_outputs
 from sb3_gcrl.compare.run import RunSpec, prepare_process
 from sb3_gcrl.compare.storage import atomic_write_text, is_finished, lock_output
-from sb3_gcrl.zoo_config import check_mode_switching_callbacks, zoo_config_section
+from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks, zoo_config_section
 
 #: evaluations per run when ``eval_freq`` is not given
 DEFAULT_N_EVALUATIONS = 20
-#: config keys RL-Zoo's ``ExperimentManager`` consumes itself instead of passing them to the algorithm
-ZOO_KEYS = frozenset(
-    {
-        "n_timesteps",
-        "n_envs",
-        "normalize",
-        "env_wrapper",
-        "vec_env_wrapper",
-        "frame_stack",
-        "callback",
-        "monitor_kwargs",
-        "env_kwargs",
-        "noise_type",
-        "noise_std",
-    }
-)
-#: constructor arguments that the run itself sets (RL-Zoo passes them), so a config may not
-RUN_SET_ARGUMENTS = frozenset({"env", "seed", "verbose", "device", "tensorboard_log"})
+#: how a comparison sets the constructor arguments a config may not set (``RUN_SET_ARGUMENTS`` of zoo_config)
+RUN_SET_HINT = "seed: --seeds; env: --envs"
 #: lines of a failed run's error printed on the console
 ERROR_LINES_SHOWN = 3
 
@@ -130,58 +112,6 @@ def _config_budget(config: Path, env_id: str) -> int:
     return int(float(section["n_timesteps"]))
 
 
-def constructor_arguments(algo_class: type) -> set[str] | None:
-    """Keyword arguments ``algo_class(...)`` accepts: its ``__init__``'s, and where that takes ``**kwargs``
-    (handed to ``super().__init__``), those of the base classes' ``__init__`` too; None when unbounded."""
-    names: set[str] = set()
-    for cls in algo_class.__mro__:
-        if "__init__" not in vars(cls) or cls is object:
-            continue
-        parameters = inspect.signature(vars(cls)["__init__"]).parameters.values()
-        names |= {p.name for p in parameters if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)} - {"self"}
-        if not any(p.kind is p.VAR_KEYWORD for p in parameters):
-            return names
-    return None
-
-
-def check_hyperparameters(algo: str, section: dict[str, Any], where: str, overrides: Sequence[str] = ()) -> None:
-    """Raise before any run starts when a hyperparameter is not an argument of the algorithm's constructor.
-
-    Keys that RL-Zoo consumes itself (:data:`ZOO_KEYS`) are allowed; an algorithm whose ``**kwargs`` reach no
-    base-class constructor without ``**kwargs`` is not checked.
-
-    :param algo: key of ``rl_zoo3.utils.ALGOS`` (our algorithms registered).
-    :param section: the hyperparameters a run would get (config section + overrides).
-    :param where: where the config's come from (named in the message).
-    :param overrides: keys given as overrides (``--hyperparams``), named as such in the message.
-    :raises ValueError: naming each unknown key, its close matches and where it comes from.
-    """
-    from rl_zoo3.utils import ALGOS
-
-    from sb3_gcrl.algorithms import ALGORITHMS, load_algorithm
-
-    algo_class = load_algorithm(algo) if algo in ALGORITHMS else ALGOS[algo]
-    arguments = constructor_arguments(algo_class)
-    if arguments is None:
-        return
-    public = sorted(key for key in arguments - RUN_SET_ARGUMENTS if not key.startswith("_"))
-    accepted = (arguments - RUN_SET_ARGUMENTS) | ZOO_KEYS
-    problems = []
-    for key in sorted(set(section) - accepted):
-        origin = "--hyperparams" if key in overrides else where
-        if key in RUN_SET_ARGUMENTS:
-            problems.append(f"{key!r} (from {origin}) is set by the run itself (seed: --seeds; env: --envs)")
-            continue
-        close = difflib.get_close_matches(key, public + sorted(ZOO_KEYS), n=3)
-        hint = f" (did you mean {', '.join(repr(c) for c in close)}?)" if close else ""
-        problems.append(f"{key!r}{hint} from {origin}")
-    if problems:
-        raise ValueError(
-            f"Unknown hyperparameter(s) for {algo} ({algo_class.__name__}): {'; '.join(problems)}. "
-            f"{algo_class.__name__} takes: {public}; RL-Zoo also reads: {sorted(ZOO_KEYS)}."
-        )
-
-
 def make_backend(backend: Backend | str, n_workers: int | None = None, ray_address: str | None = None) -> Backend:
     """Backend from its name (``local`` or ``ray``) or as given.
 
@@ -222,7 +152,7 @@ def plan_runs(
             config = method.config_for(env_id, config_dir)
             section = {**(zoo_config_section(config, env_id) or {}), **hyperparams}
             check_mode_switching_callbacks(section, f"{config} ({env_id})")
-            check_hyperparameters(method.algo, section, f"{config} (section {env_id})", list(hyperparams))
+            check_hyperparameters(method.algo, section, f"{config} (section {env_id})", list(hyperparams), RUN_SET_HINT)
             budget = n_timesteps if n_timesteps is not None else _config_budget(config, env_id)
             frequency = eval_freq if eval_freq is not None else max(1, budget // DEFAULT_N_EVALUATIONS)
             specs.extend(
