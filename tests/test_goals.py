@@ -182,6 +182,18 @@ def test_make_scheduler_errors_list_the_choices() -> None:
         make_scheduler("back_and_forth", FixedTaskGoals(), [-1.0], [1.0], alpha=1.5)
     with pytest.raises(ValueError, match="tau must be"):
         make_scheduler("novelty", FixedTaskGoals(), [-1.0], [1.0], tau=-1.0)
+    with pytest.raises(
+        ValueError, match=r"option\(s\) \['temperature'\] of goal scheduler 'novelty'; it takes .*'tau'"
+    ):
+        make_scheduler("novelty", FixedTaskGoals(), [-1.0], [1.0], temperature=1.0)  # a YAML scheduler_kwargs typo
+    with pytest.raises(
+        ValueError, match=r"'back_and_forth'; it takes \['achieved_goal_space', 'alpha', 'exploratory'\]"
+    ):
+        make_scheduler("back_and_forth", FixedTaskGoals(), exploratory="evaluation", tau=1.0, beta=0.5)
+    with pytest.raises(
+        ValueError, match=r"does not use \['tau'\]: remove them; it takes \['achieved_goal_space', 'goal_high'"
+    ):
+        make_scheduler("uniform_visited", FixedTaskGoals(), [-1.0], [1.0], tau=1.0)
     scheduler = make_scheduler(
         "back_and_forth", FixedTaskGoals(), [-1.0], [1.0], alpha=0.2, exploratory="uniform_visited"
     )

@@ -175,6 +175,24 @@ class BackAndForthScheduler(GoalScheduler):
 
 #: scheduler names accepted by :func:`make_scheduler`
 SCHEDULERS = ("env_default", "evaluation", "uniform_visited", "novelty", "back_and_forth")
+#: scheduler name -> the options of :func:`make_scheduler` it uses (``back_and_forth`` also passes on those of its
+#: exploratory scheduler)
+_SCHEDULER_OPTIONS: dict[str, tuple[str, ...]] = {
+    "env_default": ("achieved_goal_space",),
+    "evaluation": ("achieved_goal_space",),
+    "uniform_visited": ("achieved_goal_space", "goal_low", "goal_high", "n_bins", "within_bin"),
+    "novelty": ("achieved_goal_space", "goal_low", "goal_high", "n_bins", "within_bin", "tau"),
+    "back_and_forth": ("alpha", "exploratory"),
+}
+
+
+def _scheduler_options(name: str, exploratory: str | None = None) -> list[str]:
+    """The options of :func:`make_scheduler` that scheduler ``name`` uses (with its exploratory scheduler's)."""
+    options = _SCHEDULER_OPTIONS[name]
+    if name == "back_and_forth":
+        inner = "novelty" if exploratory is None else exploratory
+        options += _SCHEDULER_OPTIONS.get(inner, ())
+    return sorted(set(options))
 
 
 def make_scheduler(
@@ -188,10 +206,12 @@ def make_scheduler(
     alpha: float | None = None,
     exploratory: str | None = None,
     achieved_goal_space: spaces.Space | None = None,
+    **unknown: Any,
 ) -> GoalScheduler:
     """Build a scheduler from plain values (what an RL-Zoo YAML ``env_wrapper`` entry can hold).
 
-    A value that the chosen scheduler would not use is an error, not silently ignored.
+    An option that the chosen scheduler would not use, or that no scheduler has, is an error naming the options
+    the scheduler takes, not silently ignored.
 
     :param name: one of :data:`SCHEDULERS`.
     :param task_goals: the env's task-relevant goals (rho_0, rho_g*).
@@ -206,11 +226,23 @@ def make_scheduler(
     :param achieved_goal_space: the env's ``achieved_goal`` space; visited-goal schedulers bin it with
         :func:`~sb3_gcrl.goals.binned_goal_space_for` (discrete spaces one bin per value, image goals refused).
         ``None`` means a vector goal of ``len(goal_low)`` dimensions.
+    :param unknown: none; a name that is not an option above is refused with the scheduler's options.
     :return: the scheduler.
+    :raises ValueError: for an unknown scheduler or option, an option the scheduler does not use, or a value out of
+        range; the message lists the valid choices.
     """
-    given = {key: value for key, value in locals().items() if key not in ("name", "task_goals") and value is not None}
+    given = {
+        key: value
+        for key, value in locals().items()
+        if key not in ("name", "task_goals", "unknown") and value is not None
+    }
     if name not in SCHEDULERS:
         raise ValueError(f"Unknown goal scheduler {name!r}; choose one of {list(SCHEDULERS)}")
+    if unknown:
+        raise ValueError(
+            f"Unknown option(s) {sorted(unknown)} of goal scheduler {name!r}; it takes "
+            f"{_scheduler_options(name, exploratory)}"
+        )
     if name == "back_and_forth":
         exploratory = "novelty" if exploratory is None else exploratory
         if exploratory == "back_and_forth":
@@ -218,12 +250,12 @@ def make_scheduler(
         inner_kwargs: dict[str, Any] = {key: val for key, val in given.items() if key not in ("alpha", "exploratory")}
         inner = make_scheduler(exploratory, task_goals, **inner_kwargs)
         return BackAndForthScheduler(task_goals, inner, 0.2 if alpha is None else alpha)
-    uses = {"achieved_goal_space"}
-    if name in ("uniform_visited", "novelty"):
-        uses |= {"goal_low", "goal_high", "n_bins", "within_bin"} | ({"tau"} if name == "novelty" else set())
-    unused = sorted(set(given) - uses)
+    uses = _scheduler_options(name)
+    unused = sorted(set(given) - set(uses))
     if unused:
-        raise ValueError(f"scheduler {name!r} does not use {unused}: remove them (only back_and_forth takes alpha)")
+        raise ValueError(
+            f"scheduler {name!r} does not use {unused}: remove them; it takes {uses} (only back_and_forth takes alpha)"
+        )
     if name == "env_default":
         return EnvDefaultScheduler()
     if name == "evaluation":
