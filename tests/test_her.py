@@ -162,6 +162,25 @@ def test_task_relevant_buffer_errors() -> None:
     task_relevant_sac(env, 0.0)  # alpha = 0 is standard HER and needs no goal-commanding wrapper
 
 
+@pytest.mark.parametrize("buffer_class", [ExecutedActionHerReplayBuffer, TaskRelevantHerReplayBuffer])
+def test_n_sampled_goal_out_of_range_names_the_valid_range(buffer_class: type) -> None:
+    env = make_vec_env(LineGoalEnv, n_envs=1, seed=0)
+    kwargs = {"task_goal_ratio": 0.0} if buffer_class is TaskRelevantHerReplayBuffer else {}
+    for n_sampled_goal in (-1, -3, 2.5, "4"):  # -1 used to divide by zero in SB3's HerReplayBuffer
+        with pytest.raises(ValueError, match=rf"n_sampled_goal must be an integer >= 0.*got '?{n_sampled_goal}"):
+            buffer_class(100, env.observation_space, env.action_space, env, n_sampled_goal=n_sampled_goal, **kwargs)
+    buffer = buffer_class(100, env.observation_space, env.action_space, env, n_sampled_goal=0, **kwargs)
+    assert buffer.her_ratio == 0.0  # 0 is plain replay through a HER buffer
+
+
+def test_task_relevant_relabeling_needs_relabeled_goals() -> None:
+    env = make_vec_env(LineGoalEnv, n_envs=1, seed=0, wrapper_class=morefree_line(0.3))
+    space, actions = env.observation_space, env.action_space
+    with pytest.raises(ValueError, match=r"integer >= 1 .* got 0; task_goal_ratio \(alpha\) = 0.3"):
+        TaskRelevantHerReplayBuffer(100, space, actions, env, n_sampled_goal=0)  # alpha read from the scheduler
+    assert TaskRelevantHerReplayBuffer(100, space, actions, env, n_sampled_goal=1).task_goal_ratio == 0.3
+
+
 def morefree_line(alpha: float) -> object:
     def wrap(env: gym.Env) -> gym.Env:
         scheduler_kwargs = {"alpha": alpha, "exploratory": "env_default"}

@@ -257,6 +257,8 @@ def test_errors_name_the_fix():
         make_model(value_samples=0)
     with pytest.raises(ValueError, match="n_envs=1"):
         make_model(n_envs=2)
+    with pytest.raises(ValueError, match=r"n_sampled_goal must be an integer >= 0.*got -1"):  # SB3's HER buffer
+        make_model(replay_buffer_kwargs={"n_sampled_goal": -1})
     with pytest.raises(TypeError, match="Dict goal observation"):
         IBC("MlpPolicy", "Pendulum-v1")
     with pytest.raises(ValueError, match="n_targets"):

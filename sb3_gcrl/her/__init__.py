@@ -5,6 +5,7 @@ from sb3_gcrl.her.executed_action import (
     ExecutedActionHerReplayBuffer,
     ExecutedActionMixin,
     ExecutedActionReplayBuffer,
+    check_n_sampled_goal,
 )
 from sb3_gcrl.her.task_relevant import TaskRelevantHerReplayBuffer
 
@@ -14,4 +15,5 @@ __all__ = [
     "ExecutedActionMixin",
     "ExecutedActionReplayBuffer",
     "TaskRelevantHerReplayBuffer",
+    "check_n_sampled_goal",
 ]

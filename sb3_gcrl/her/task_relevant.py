@@ -21,7 +21,7 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_gcrl.her.executed_action import ExecutedActionHerReplayBuffer
+from sb3_gcrl.her.executed_action import ExecutedActionHerReplayBuffer, check_n_sampled_goal
 
 #: the env method (provided by :class:`sb3_gcrl.wrappers.GoalCommandWrapper`) serving rho_0 / rho_g* samples
 TASK_GOALS_METHOD = "sample_task_goals"
@@ -52,7 +52,8 @@ class TaskRelevantHerReplayBuffer(ExecutedActionHerReplayBuffer):
     :param env: the training VecEnv (serves ``compute_reward`` and the task-relevant goals).
     :param task_goal_ratio: alpha of Section 3.4.2 (thesis: 0.2); 0 gives standard HER (with executed actions);
         ``None`` (default) reads alpha from the env's scheduler.
-    :param kwargs: the other :class:`HerReplayBuffer` arguments (``n_sampled_goal``, ``goal_selection_strategy``...).
+    :param kwargs: the other :class:`HerReplayBuffer` arguments (``n_sampled_goal``, ``goal_selection_strategy``...);
+        ``n_sampled_goal`` must be >= 1 while alpha > 0 (alpha acts on the relabeled goals).
     """
 
     def __init__(
@@ -93,6 +94,12 @@ class TaskRelevantHerReplayBuffer(ExecutedActionHerReplayBuffer):
                 f"alpha given twice with different values: task_goal_ratio={given} but the env's back_and_forth "
                 f"scheduler has alpha={env_alpha}; drop task_goal_ratio (the scheduler's alpha is used)"
             )
+        if self.task_goal_ratio:
+            why = (
+                f"; task_goal_ratio (alpha) = {self.task_goal_ratio} picks task-relevant goals among the relabeled "
+                "ones, so it needs some (or set task_goal_ratio=0)"
+            )
+            check_n_sampled_goal(self.n_sampled_goal, minimum=1, why=why)
         if self.task_goal_ratio and not serves:
             raise TypeError(
                 "TaskRelevantHerReplayBuffer needs the env to serve task-relevant goals: wrap it in "

@@ -41,6 +41,7 @@ from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
+from sb3_gcrl.her import check_n_sampled_goal
 
 #: the env attribute that tells a forward-backward env (``ForwardBackwardWrapper``) apart
 PHASE_ENV_ATTR = "forward_backward_steps"
@@ -246,6 +247,8 @@ class ForwardBackwardSAC(ClassNamedRunsMixin, SAC):
         assert self.replay_buffer_class is not None
         kwargs = dict(self.replay_buffer_kwargs)
         if issubclass(self.replay_buffer_class, HerReplayBuffer):
+            if "n_sampled_goal" in kwargs:  # before SB3's HerReplayBuffer divides by n_sampled_goal + 1
+                check_n_sampled_goal(kwargs["n_sampled_goal"])
             if self.env is None:
                 raise ValueError(f"HerReplayBuffer needs the env: pass env=... ({type(self).__name__}.load(path, env))")
             kwargs["env"] = self.env
