@@ -9,6 +9,8 @@ from __future__ import annotations
 import io
 import json
 import math
+import os
+import stat
 from pathlib import Path
 
 import gymnasium as gym
@@ -28,7 +30,7 @@ from sb3_gcrl.compare.methods import check_env_id
 from sb3_gcrl.compare.report import summarize, write_outputs
 from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run, visited_goals
 from sb3_gcrl.compare.runner import plan_runs
-from sb3_gcrl.compare.storage import is_finished, read_run_record, write_run_result
+from sb3_gcrl.compare.storage import atomic_write_text, is_finished, read_run_record, write_run_result
 
 TINY_CONFIG = """
 Pendulum-v1:
@@ -748,3 +750,19 @@ def test_unusable_all_goals_csv_makes_the_run_unfinished_and_is_named(tmp_path, 
     assert len(notes) == 1 and str(run_dir / "all_goals.csv") in notes[0] and problem in notes[0]
     summary = summarize(tmp_path / "out", [spec])
     assert len(summary.failed) == 1 and problem in summary.failed[0][1]
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027])
+def test_written_files_honour_the_umask_like_open(tmp_path: Path, umask: int) -> None:
+    previous = os.umask(umask)
+    try:
+        atomic_write_text(tmp_path / "report.md", "new\n")
+        existing = tmp_path / "scores.csv"
+        existing.write_text("old\n")
+        existing.chmod(0o600)
+        atomic_write_text(existing, "replaced\n")
+    finally:
+        os.umask(previous)
+    assert stat.S_IMODE((tmp_path / "report.md").stat().st_mode) == 0o666 & ~umask  # 0o644 under 0o022
+    assert stat.S_IMODE(existing.stat().st_mode) == 0o600 and existing.read_text() == "replaced\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.md", "scores.csv"]  # no temporary file left
