@@ -13,6 +13,7 @@ read from the shipped ``zoo_configs/<algo>.yml`` instead of the zoo's own (which
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -251,6 +252,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     :return: exit code.
     """
     args = list(sys.argv[1:] if argv is None else argv)
+    try:
+        code = _dispatch(args)
+        sys.stdout.flush()  # inside the try: a reader gone before the last buffered lines is a broken pipe too
+    except BrokenPipeError:
+        # the reader stopped reading (`sb3-gcrl list-configs | head -1`): stop quietly, as Unix tools do, and point
+        # stdout at /dev/null so that the interpreter's own flush at exit does not fail again
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
+    return code
+
+
+def _dispatch(args: list[str]) -> int:
+    """Run the command of ``args`` (``main`` without the broken-pipe handling)."""
     if not args or args[0] in ("-h", "--help"):
         print(USAGE)
         return 0 if args else 2

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -23,6 +24,22 @@ def test_help_and_unknown_command(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["trian"]) == 2
     err = capsys.readouterr().err
     assert "unknown command 'trian'" in err and "compare" in err
+
+
+def test_a_closed_pipe_ends_the_command_quietly() -> None:
+    read, write = os.pipe()
+    os.close(read)  # the reader is gone before anything is written (`sb3-gcrl list-configs | head -1`)
+    try:
+        result = subprocess.run(
+            [sys.executable, "-m", "sb3_gcrl", "list-configs"],
+            stdout=write,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=120,
+        )
+    finally:
+        os.close(write)
+    assert result.stderr == "" and result.returncode == 1  # no BrokenPipeError traceback
 
 
 def test_list_algos_lists_ours_and_stock(capsys: pytest.CaptureFixture[str]) -> None:
