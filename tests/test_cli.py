@@ -61,8 +61,23 @@ def test_every_registered_algorithm_imports() -> None:
 
 def test_import_registers_third_party_envs() -> None:
     assert sb3_gcrl.__version__
+    assert sb3_gcrl.CEC.__name__ == "CEC" and sb3_gcrl.wrappers.GoExploreWrapper  # imported on first access
+    assert set(sb3_gcrl.__all__) <= set(dir(sb3_gcrl))
+    with pytest.raises(AttributeError, match="no attribute 'CECC'"):
+        sb3_gcrl.CECC  # noqa: B018
     for env_id in ("MinAtar/Breakout-v1", "FetchReach-v4", "PointMaze_UMaze-v3"):
         assert env_id in gym.registry
+
+
+def test_help_and_import_load_no_torch_sb3_or_rl_zoo() -> None:
+    code = (
+        "import sys; from sb3_gcrl.cli import main; main(['--help']); import gymnasium as gym; "
+        "assert 'GCRL/GrowingTree-v0' in gym.registry and 'MinAtar/Breakout-v1' in gym.registry; "
+        "print(sorted(m for m in ('torch', 'stable_baselines3', 'rl_zoo3', 'minatar') if m in sys.modules))"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert result.stdout.splitlines()[-1] == "[]"  # the heavy imports wait for a command (or class) that needs them
 
 
 def test_import_is_quiet() -> None:

@@ -90,6 +90,19 @@ def test_minatar_games_are_available(env_id: str) -> None:
     env.step(env.action_space.sample())
 
 
+def test_minatar_envs_are_registered_as_minatar_registers_them(monkeypatch: pytest.MonkeyPatch) -> None:
+    import minatar.gym
+
+    registered: dict[str, tuple[str, dict]] = {}
+    monkeypatch.setattr(
+        minatar.gym, "register", lambda id, entry_point, kwargs: registered.update({id: (entry_point, kwargs)})
+    )
+    minatar.gym.register_envs()
+    assert set(MINATAR_ENV_IDS) <= set(registered)
+    for env_id, (entry_point, kwargs) in registered.items():
+        assert (gym.spec(env_id).entry_point, gym.spec(env_id).kwargs) == (entry_point, kwargs), env_id
+
+
 @pytest.mark.parametrize("env_id", GOAL_ENV_IDS)
 def test_goal_envs_declare_task_relevant_goals(env_id: str) -> None:
     env = gym.make(env_id)

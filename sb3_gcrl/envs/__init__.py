@@ -88,13 +88,27 @@ MINATAR_ENV_IDS: tuple[str, ...] = tuple(
 """The five MinAtar games of the 2M chapter, registered by :func:`register_envs` (minimal action sets)."""
 
 
+#: MinAtar's games (module names), registered by :func:`register_envs` as ``minatar.gym.register_envs`` does
+_MINATAR_GAMES: tuple[str, ...] = ("asterix", "breakout", "freeway", "seaquest", "space_invaders")
+
+
+def _register_minatar() -> None:
+    """Register MinAtar's ids as ``minatar.gym.register_envs`` does (v0: full action set, v1: minimal), by entry
+    point: importing MinAtar loads matplotlib and seaborn for its renderer (seconds), so it waits for ``gym.make``."""
+    for game in _MINATAR_GAMES:
+        name = game.title().replace("_", "")
+        for version, minimal in (("v0", False), ("v1", True)):
+            env_id = f"MinAtar/{name}-{version}"
+            if env_id not in gym.registry:
+                kwargs = {"game": game, "use_minimal_action_set": minimal}
+                gym.register(env_id, entry_point="minatar.gym:BaseEnv", kwargs=kwargs)
+
+
 def _register_third_party() -> None:
     import gymnasium_robotics
-    import minatar.gym
 
     gym.register_envs(gymnasium_robotics)
-    if "MinAtar/Breakout-v1" not in gym.registry:
-        minatar.gym.register_envs()
+    _register_minatar()
 
 
 def register_envs() -> None:
