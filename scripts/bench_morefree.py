@@ -5,7 +5,10 @@ warm-up, reported apart):
 
 * ``cpu``: the CPU preset as shipped (``CPU_NETWORK``, batch 16 x 32, 128 imagination starts, train ratio 2);
 * ``cpu-full``: the CPU preset with every posterior state an imagination start (512, as PEG / DreamerV3);
-* ``thesis``: the thesis preset (``THESIS_NETWORK``, PEG's batch 45 x 50, 2250 starts), a few steps.
+* ``thesis``: the thesis preset (``THESIS_NETWORK``, PEG's batch 45 x 50, 2250 starts), a few steps;
+* ``before``: the sizes of the CPU preset the agent had before it was rebuilt on PEG's (commit ``ec97e36``: GRU 64,
+  64 latent units, 64-wide layers, 3 ensemble members), every posterior state a start. With ``--before`` (a checkout
+  of that commit) that agent's step is timed in the same run, alternating with ours.
 
 For each, the train steps/s (median over ``--repeats``, wall and process CPU time) of the plain step (``eager``),
 the compiled one (``compiled``: ``compile_train_step``) and the compiled bfloat16 one (``compiled-bf16``: also
@@ -19,6 +22,8 @@ besides the world model::
 
     python scripts/bench_morefree.py --sheeprl-python /work/venv-sheeprl/bin/python
     python scripts/bench_morefree.py --settings cpu --variants compiled-bf16 --collect   # + env steps/s
+    git worktree add /tmp/sb3_gcrl_before ec97e36
+    python scripts/bench_morefree.py --settings before --before /tmp/sb3_gcrl_before      # vs the agent before
 
 ``--collect`` also times data collection (filtering, pi_G / pi_E actions, Back-and-Forth Go-Explore with PEG goals)
 of the CPU preset and prints what a 100k-step reset-free PointUMaze run costs at train ratio 2.
@@ -27,6 +32,7 @@ of the CPU preset and prints what a 100k-step reset-free PointUMaze run costs at
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import subprocess
@@ -50,7 +56,54 @@ SETTINGS: dict[str, tuple[dict[str, Any], dict[str, Any], int]] = {
     "cpu": (CPU_NETWORK, {"batch_size": 16, "batch_length": 32, "imagination_starts": 128}, 20),
     "cpu-full": (CPU_NETWORK, {"batch_size": 16, "batch_length": 32, "imagination_starts": None}, 10),
     "thesis": (THESIS_NETWORK, {"batch_size": 45, "batch_length": 50, "imagination_starts": None}, 2),
+    "before": (
+        dict(
+            deter=64,
+            stoch=64,
+            rssm_hidden=64,
+            model_hidden=64,
+            model_layers=2,
+            head_hidden=64,
+            head_layers=2,
+            ensemble_size=3,
+            ensemble_hidden=64,
+        ),
+        {"batch_size": 16, "batch_length": 32, "imagination_starts": None},
+        10,
+    ),
 }
+#: the same sizes in the arguments of the agent before the rebuild (commit ec97e36: 8 categoricals of 8 classes)
+BEFORE_NETWORK = dict(
+    deter=64,
+    stoch=8,
+    classes=8,
+    hidden=64,
+    embed_dim=64,
+    model_layers=2,
+    actor_hidden=64,
+    actor_layers=2,
+    ensemble_size=3,
+)
+BEFORE_SCRIPT = """
+import json, sys, time
+import torch as th
+sys.path.insert(0, {source!r})
+th.set_num_threads(1)
+from stable_baselines3.common.env_util import make_vec_env
+import sb3_gcrl
+from sb3_gcrl.morefree import MoReFree
+assert sb3_gcrl.__file__.startswith({source!r}), sb3_gcrl.__file__
+env = make_vec_env("GCRL/PointUMazeGoal-v0", n_envs=1, seed=0)
+model = MoReFree("MultiInputPolicy", env, learning_starts=500, train_ratio=10**9, policy_kwargs={network!r},
+                 seed=0, batch_size=16, batch_length=32, imagination_starts=None)
+model.learn(600)
+for _ in range(3):
+    model.train()
+wall, cpu = time.perf_counter(), time.process_time()
+for _ in range({steps}):
+    model.train()
+print("BEFORE", json.dumps([({steps}) / (time.perf_counter() - wall), (time.process_time() - cpu) / {steps}]))
+"""
 VARIANTS = {
     "eager": {"compile_train_step": False, "mixed_precision": False},
     "compiled": {"compile_train_step": True, "mixed_precision": False},
@@ -125,6 +178,18 @@ def sheeprl_step(python: str, setting: str, steps: int) -> float | None:
     return float(match.group(1))
 
 
+def before_step(source: str, steps: int) -> tuple[float, float] | None:
+    """(train steps/s, CPU s per step) of the agent before the rebuild, checked out at ``source``, or None."""
+    code = BEFORE_SCRIPT.format(source=str(Path(source).resolve()), network=BEFORE_NETWORK, steps=steps)
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd="/", check=False)
+    match = re.search(r"^BEFORE (.*)$", result.stdout, re.MULTILINE)
+    if match is None:
+        print(f"the agent at {source} failed: {result.stderr[-500:]}", file=sys.stderr)
+        return None
+    rate, cpu = json.loads(match.group(1))
+    return float(rate), float(cpu)
+
+
 def collection(steps: int, variant: str) -> float:
     """Env steps/s of data collection with the CPU preset's trained-for-a-moment agent (no training)."""
     model = build("cpu", variant, "cpu")
@@ -135,12 +200,13 @@ def collection(steps: int, variant: str) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--settings", nargs="*", default=list(SETTINGS), choices=list(SETTINGS))
+    parser.add_argument("--settings", nargs="*", default=["cpu", "cpu-full", "thesis"], choices=list(SETTINGS))
     parser.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=list(VARIANTS))
     parser.add_argument("--repeats", type=int, default=3, help="repeats; medians are reported")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--sheeprl-python", help="python of a venv with sheeprl 0.8.4 (the DreamerV3 reference)")
     parser.add_argument("--collect", action="store_true", help="also time data collection (CPU preset)")
+    parser.add_argument("--before", help="a checkout of commit ec97e36, timed beside the 'before' setting")
     args = parser.parse_args()
     th.set_num_threads(1)
 
@@ -156,8 +222,8 @@ def main() -> None:
             models[variant] = build(setting, variant, args.device)
             models[variant].train()  # the first step compiles
             setup[variant] = time.perf_counter() - start
-        rates: dict[str, list[float]] = {name: [] for name in [*args.variants, "sheeprl"]}
-        cpu_per_step: dict[str, list[float]] = {name: [] for name in args.variants}
+        rates: dict[str, list[float]] = {name: [] for name in [*args.variants, "sheeprl", "before"]}
+        cpu_per_step: dict[str, list[float]] = {name: [] for name in [*args.variants, "before"]}
         for _ in range(args.repeats):  # alternate: every repeat times every step once
             for variant, model in models.items():
                 wall, cpu = time_steps(model, steps)
@@ -167,21 +233,30 @@ def main() -> None:
                 rate = sheeprl_step(args.sheeprl_python, setting, steps)
                 if rate is not None:
                     rates["sheeprl"].append(rate)
+            if args.before and setting == "before":
+                timing = before_step(args.before, steps)
+                if timing is not None:
+                    rates["before"].append(timing[0])
+                    cpu_per_step["before"].append(timing[1])
         for name, runs in rates.items():
             if not runs:
                 continue
             cpu = f"{np.median(cpu_per_step[name]):.3f}" if name in cpu_per_step else "(sheeprl's own timing)"
             built = f"{setup[name]:.0f}" if name in setup else "-"
-            label = "sheeprl DreamerV3" if name == "sheeprl" else name
+            label = {"sheeprl": "sheeprl DreamerV3", "before": "before the rebuild (ec97e36)"}.get(name, name)
             print(
-                f"| {setting} | {label} | {np.median(runs):.2f} | {cpu} | {built} | "
-                f"{', '.join(f'{r:.2f}' for r in runs)} |",
+                f"| {setting} | {label} | {np.median(runs):.3g} | {cpu} | {built} | "
+                f"{', '.join(f'{r:.3g}' for r in runs)} |",
                 flush=True,
             )
         if rates["sheeprl"]:
             sheeprl = float(np.median(rates["sheeprl"]))
             best = max(args.variants, key=lambda v: float(np.median(rates[v])))
             print(f"| {setting} | ratio {best} / sheeprl | {float(np.median(rates[best])) / sheeprl:.2f}x | | | |")
+        if rates["before"]:
+            before = float(np.median(rates["before"]))
+            best = max(args.variants, key=lambda v: float(np.median(rates[v])))
+            print(f"| {setting} | ratio {best} / before | {float(np.median(rates[best])) / before:.2f}x | | | |")
     if args.collect:
         variant = args.variants[-1]
         env_rate = collection(3000, variant)

@@ -530,7 +530,12 @@ def test_progress_bar_logger_and_tensorboard_run_name(name: str, tmp_path: Path)
     assert len(lines) >= 2 and "time/total_timesteps" in lines[0]
 
 
-@pytest.mark.parametrize("name", sorted(n for n, case in CASES.items() if issubclass(case.cls, OffPolicyAlgorithm)))
+@pytest.mark.parametrize(
+    "name",
+    sorted(
+        n for n, case in CASES.items() if issubclass(case.cls, OffPolicyAlgorithm) or "learning_starts" in case.kwargs
+    ),
+)
 def test_a_budget_within_learning_starts_warns_that_nothing_is_trained(name: str):
     model = CASES[name].make(learning_starts=40)
     with pytest.warns(UserWarning, match=r"budget of 20 timesteps is <= learning_starts=40") as record:

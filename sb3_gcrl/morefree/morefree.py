@@ -39,6 +39,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.utils import safe_mean
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
 
+from sb3_gcrl.common.runs import warn_if_learning_never_starts
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
 from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler, find_agent_hooks
@@ -813,6 +814,7 @@ class MoReFree(BaseAlgorithm):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfMoReFree:
+        warn_if_learning_never_starts(self, total_timesteps, reset_num_timesteps)
         total_timesteps, callback = self._setup_learn(
             total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
         )
@@ -828,7 +830,7 @@ class MoReFree(BaseAlgorithm):
                 remaining = -(-(total_timesteps - self.num_timesteps) // self.n_envs)
                 if not self.collect_rollouts(callback, min(self.train_ratio, remaining), log_interval):
                     break
-                if self.num_timesteps >= self.learning_starts and self.replay_buffer.can_sample(self.batch_length):
+                if self.num_timesteps > self.learning_starts and self.replay_buffer.can_sample(self.batch_length):
                     self.train()
         finally:
             self._detach()
