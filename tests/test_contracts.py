@@ -10,6 +10,7 @@ gradient step), the test says so instead of skipping silently.
 
 from __future__ import annotations
 
+import inspect
 import io
 import warnings
 from collections.abc import Callable
@@ -22,6 +23,7 @@ import numpy as np
 import pytest
 import torch as th
 from envs import MOREFREE_TINY_NET
+from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import (
     BaseCallback,
@@ -240,6 +242,40 @@ def assert_same_state(first: Any, second: Any, where: str = "") -> None:
         np.testing.assert_array_equal(first, second, err_msg=where)
     else:
         assert first == second, where
+
+
+# ---------------------------------------------------------------------------------------------------- constructor
+#: SB3's public algorithms: one built on one of them takes all of its arguments
+SB3_ALGORITHMS: tuple[type[BaseAlgorithm], ...] = (A2C, DDPG, DQN, PPO, SAC, TD3)
+
+
+def sb3_arguments_with_defaults(cls: type[BaseAlgorithm]) -> tuple[str, dict[str, Any]]:
+    """The SB3 algorithm ``cls`` builds on and its arguments that have a default, with that default.
+
+    On SB3's abstract bases (``BaseAlgorithm``, ``OffPolicyAlgorithm``: their other arguments are each algorithm's
+    own settings), the arguments that every SB3 algorithm takes with the same default.
+    """
+    base = next((c for c in cls.__mro__ if c in SB3_ALGORITHMS), None)
+    signatures = [inspect.signature(c.__init__).parameters for c in ([base] if base else SB3_ALGORITHMS)]
+    defaults = {
+        name: parameter.default
+        for name, parameter in signatures[0].items()
+        if parameter.default is not inspect.Parameter.empty
+        and all(name in other and other[name].default == parameter.default for other in signatures)
+    }
+    return (base.__name__ if base else "every SB3 algorithm"), defaults
+
+
+@algo_names
+def test_constructor_takes_every_argument_of_its_sb3_base_at_the_default(name: str):
+    case = CASES[name]
+    base, defaults = sb3_arguments_with_defaults(case.cls)
+    # the case's own settings (small buffers and networks) stay; seed is set by Case.make
+    arguments = {k: v for k, v in defaults.items() if k not in case.kwargs and k != "seed"}
+    try:
+        case.make(**arguments)
+    except TypeError as error:
+        pytest.fail(f"{case.cls.__name__} does not take an argument of {base} at its default: {error}")
 
 
 # ---------------------------------------------------------------------------------------------------- predict

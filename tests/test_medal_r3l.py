@@ -348,6 +348,23 @@ def test_construction_errors_name_the_fix():
         R3L("MultiInputPolicy", env, state_key="state")
 
 
+@pytest.mark.parametrize(
+    ("argument", "value", "reason"),
+    [
+        ("optimize_memory_usage", True, "own phases only"),
+        ("n_steps", 3, "one-step rewards"),
+        ("use_sde", True, "forward actor only"),
+    ],
+)
+def test_sac_arguments_that_cannot_work_with_two_learners_are_refused_saying_why(
+    argument: str, value: Any, reason: str
+):
+    env = make_vec_env(ENV_ID, n_envs=1, wrapper_class=wrap)
+    with pytest.raises(ValueError, match=f"{argument}.*{reason}"):
+        R3L("MultiInputPolicy", env, **{argument: value})
+    R3L("MultiInputPolicy", env, sde_sample_freq=4, use_sde_at_warmup=True)  # no effect without use_sde, as in SAC
+
+
 # ------------------------------------------------------------------------------------------------ zoo configs
 CONFIGS = sorted((Path(sb3_gcrl.__file__).parent / "zoo_configs").glob("*.yml"))
 BASELINE_CONFIGS = [p for p in CONFIGS if p.name.startswith(("medal_", "r3l_"))]

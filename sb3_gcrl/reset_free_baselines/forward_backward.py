@@ -120,10 +120,11 @@ class ForwardBackwardSAC(ClassNamedRunsMixin, SAC):
     Use it on a goal env wrapped in :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` (``segment_length`` = phase length)
     and :class:`~sb3_gcrl.reset_free_baselines.ForwardBackwardWrapper`, and pass
     :class:`~sb3_gcrl.callbacks.ResetFreeCallback` to ``learn`` (it switches the training env to reset-free mode).
-    Every SAC argument applies to both learners (the backward SAC is built from this model's settings, so load-time
-    overrides reach both). The backward learner's ``train/*`` keys are logged as ``backward/*``, the phase shares as
-    ``<log_prefix>/forward_step_share`` and ``<log_prefix>/backward_step_share``; ``learn`` names the TensorBoard run
-    after the class.
+    Every SAC argument is taken and applies to both learners (the backward SAC is built from this model's settings, so
+    load-time overrides reach both); ``optimize_memory_usage=True``, ``n_steps > 1`` and ``use_sde=True`` are refused
+    with a ``ValueError`` (why: their parameters below). The backward learner's ``train/*`` keys are logged as
+    ``backward/*``, the phase shares as ``<log_prefix>/forward_step_share`` and ``<log_prefix>/backward_step_share``;
+    ``learn`` names the TensorBoard run after the class.
 
     :param policy: SAC policy class or alias (``"MultiInputPolicy"`` for goal observations).
     :param env: the env (``None`` only when loading).
@@ -138,9 +139,19 @@ class ForwardBackwardSAC(ClassNamedRunsMixin, SAC):
     :param action_noise: extra action noise (both policies).
     :param replay_buffer_class: buffer class of both learners (SB3's default when None).
     :param replay_buffer_kwargs: its keyword arguments.
+    :param optimize_memory_usage: SAC's argument; only False: each learner's buffer holds its own phases' steps
+        only, so the next observation that SB3's memory optimisation reads from the following row would be one of a
+        later phase (and SB3's Dict and HER buffers refuse it too).
+    :param n_steps: SAC's n-step returns; only 1: SB3 builds n-step returns into its default buffer only, whereas
+        both learners keep their own buffers (Dict goal observations, HER goal relabeling, MEDAL's and R3L's
+        backward rewards relabeled at sampling time), whose sampled rewards are one-step rewards.
     :param ent_coef: SAC's entropy coefficient.
     :param target_update_interval: gradient steps between target-network updates.
     :param target_entropy: SAC's target entropy.
+    :param use_sde: SAC's gSDE exploration; only False: SB3 resamples the exploration noise of this model's actor
+        only, so the backward actor's noise would not follow ``sde_sample_freq``.
+    :param sde_sample_freq: SAC's gSDE noise resampling frequency (no effect without ``use_sde``).
+    :param use_sde_at_warmup: SAC's gSDE during the warm-up (no effect without ``use_sde``).
     :param stats_window_size: episodes (segments) in the rollout statistics.
     :param tensorboard_log: tensorboard folder.
     :param policy_kwargs: keyword arguments of both policies.
@@ -173,9 +184,14 @@ class ForwardBackwardSAC(ClassNamedRunsMixin, SAC):
         action_noise: ActionNoise | None = None,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
+        optimize_memory_usage: bool = False,
+        n_steps: int = 1,
         ent_coef: str | float = "auto",
         target_update_interval: int = 1,
         target_entropy: str | float = "auto",
+        use_sde: bool = False,
+        sde_sample_freq: int = -1,
+        use_sde_at_warmup: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -184,6 +200,25 @@ class ForwardBackwardSAC(ClassNamedRunsMixin, SAC):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
+        name = type(self).__name__
+        if optimize_memory_usage:
+            raise ValueError(
+                f"{name} does not support optimize_memory_usage=True: each learner's replay buffer holds the steps of "
+                "its own phases only, so the next observation that SB3 reads from the following row would be one of "
+                "a later phase; leave it False"
+            )
+        if n_steps != 1:
+            raise ValueError(
+                f"{name} does not support n-step returns (n_steps={n_steps}): SB3 builds them into its default "
+                "replay buffer only, whereas the forward and backward learners keep their own buffers (Dict goal "
+                "observations, HER relabeling, rewards relabeled at sampling time) that give one-step rewards; "
+                "leave n_steps=1"
+            )
+        if use_sde:
+            raise ValueError(
+                f"{name} does not support use_sde=True: SB3 resamples the gSDE noise of the forward actor only, so "
+                "the backward actor's exploration noise would not follow sde_sample_freq; leave it False"
+            )
         super().__init__(
             policy,
             env,  # type: ignore[arg-type]
@@ -198,9 +233,14 @@ class ForwardBackwardSAC(ClassNamedRunsMixin, SAC):
             action_noise=action_noise,
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
+            optimize_memory_usage=optimize_memory_usage,
+            n_steps=n_steps,
             ent_coef=ent_coef,
             target_update_interval=target_update_interval,
             target_entropy=target_entropy,
+            use_sde=use_sde,
+            sde_sample_freq=sde_sample_freq,
+            use_sde_at_warmup=use_sde_at_warmup,
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
             policy_kwargs=dict(policy_kwargs or {}),  # never the caller's dict (SB3's SAC writes use_sde into it)
