@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -359,6 +360,18 @@ def test_clear_errors():
         model.policy.update_episodic_memory(
             model.policy._episode_features(np.full((2, 6), np.nan, np.float32)), np.zeros(2), np.zeros(2)
         )
+
+
+@pytest.mark.parametrize("cls", [TwoMemoryDQN, TwoMemorySAC])
+def test_n_step_returns_are_refused_not_silently_dropped(cls: type):
+    env = Corridor() if cls is TwoMemoryDQN else Slider()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # SB3's "n_steps is ignored" warning would be an error here too
+        with pytest.raises(ValueError, match=r"n-step returns \(n_steps=3\).*SourceTaggedReplayBuffer"):
+            cls("MlpPolicy", env, n_steps=3)
+    # a buffer class of the user's own: SB3's own rule (and warning) applies
+    with pytest.warns(UserWarning, match="n_steps=3"):
+        cls("MlpPolicy", env, n_steps=3, replay_buffer_class=ReplayBuffer, buffer_size=100)
 
 
 # ------------------------------------------------------------------------------------------------ reliability

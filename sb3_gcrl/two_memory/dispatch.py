@@ -375,10 +375,18 @@ class TwoMemoryAlgorithmMixin(ClassNamedRunsMixin):
         :param ec_update_truncated: also write time-limit-truncated episodes into the episodic memory.
         :param ec_kwargs: the subclass's :attr:`ec_settings`, handed to the policy.
         :param kwargs: the SB3 algorithm's arguments.
-        :raises ValueError: for an action space of the other 2M algorithm, a bad schedule or switch, or a 2M / EC
-            setting given in ``policy_kwargs``.
+        :raises ValueError: for an action space of the other 2M algorithm, a bad schedule or switch, a 2M / EC
+            setting given in ``policy_kwargs``, or ``n_steps > 1`` without a ``replay_buffer_class`` of the user's.
         """
         env = self._check_two_memory_action_space(env)
+        n_steps = kwargs.get("n_steps", 1)
+        if n_steps != 1 and kwargs.get("replay_buffer_class") is None:
+            # SB3 would build its NStepReplayBuffer; the 2M buffer replaces it and n_steps would be silently lost
+            raise ValueError(
+                f"{type(self).__name__} does not support n-step returns (n_steps={n_steps}): its replay buffer tags "
+                "each transition with the memory that collected it (SourceTaggedReplayBuffer), which gives one-step "
+                "returns, and SB3 sets n-step returns up only in its own default buffer; leave n_steps=1"
+            )
         ec_kwargs = dict(ec_kwargs or {})
         for name in ("policy_kwargs", "replay_buffer_kwargs"):
             if kwargs.get(name) is not None:

@@ -42,9 +42,10 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
     :param ec_capacity_per_action: rows per MFEC action table (None: authors' ``1e5 / (2 * n_actions)``).
     :param ec_n_neighbors: k of the MFEC estimate (Table 5.1: 3).
     :param knn_backend: kNN backend of the MFEC tables (see :class:`~sb3_gcrl.memory.KNNIndex`).
-    :param kwargs: every :class:`~stable_baselines3.DQN` argument.
-    :raises ValueError: for a non-Discrete action space (use :class:`TwoMemorySAC`), or a 2M or EC setting given in
-        ``policy_kwargs``.
+    :param kwargs: every :class:`~stable_baselines3.DQN` argument; ``n_steps`` only 1 (the replay buffer that tags
+        each transition's source gives one-step returns; n-step returns are not implemented in it).
+    :raises ValueError: for a non-Discrete action space (use :class:`TwoMemorySAC`), a 2M or EC setting given in
+        ``policy_kwargs``, or ``n_steps > 1``.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -106,9 +107,10 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
     :param ec_epsilon: epsilon of Algorithm 1: probability of Gaussian noise on an EC action while training.
     :param ec_noise_std: sigma of Algorithm 1: std of that noise, in [-1, 1] action units.
     :param knn_backend: kNN backend of the CEC memory.
-    :param kwargs: every :class:`~stable_baselines3.SAC` argument.
-    :raises ValueError: for a non-Box action space (use :class:`TwoMemoryDQN`), ``use_sde=True``, or a 2M or EC
-        setting given in ``policy_kwargs``.
+    :param kwargs: every :class:`~stable_baselines3.SAC` argument; ``n_steps`` only 1 (the replay buffer that tags
+        each transition's source gives one-step returns; n-step returns are not implemented in it).
+    :raises ValueError: for a non-Box action space (use :class:`TwoMemoryDQN`), ``use_sde=True``, ``n_steps > 1``,
+        or a 2M or EC setting given in ``policy_kwargs``.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
