@@ -337,6 +337,30 @@ def test_predict_on_the_users_own_env_and_evaluate_policy(name: str):
     assert np.isfinite(mean) and np.isfinite(std)
 
 
+def float64_actions(env: gym.Env) -> gym.Env:
+    """``env`` with its Box action space declared float64 (the actions are cast back to the env's dtype)."""
+    space = env.action_space
+    assert isinstance(space, gym.spaces.Box)
+    wide = gym.spaces.Box(space.low.astype(np.float64), space.high.astype(np.float64), space.shape, np.float64)
+    return gym.wrappers.TransformAction(env, lambda action: np.asarray(action, dtype=space.dtype), wide)
+
+
+@case_names
+def test_predict_returns_the_action_spaces_dtype(name: str):
+    case = ALL_CASES[name]
+    box_actions = isinstance(gym.make(case.env_id).action_space, gym.spaces.Box)
+    # a float64 Box where the actions are a Box (float32 is SB3's default, so a float32 cast would go unseen)
+    env = make_vec_env(case.env_id, n_envs=1, seed=0, wrapper_class=float64_actions if box_actions else None)
+    model = case.make(env)
+    assert not box_actions or model.action_space.dtype == np.float64
+    obs = env.reset()
+    single = {k: v[0] for k, v in obs.items()} if isinstance(obs, dict) else obs[0]
+    for observation in (obs, single):
+        for deterministic in (True, False):
+            action, _ = model.predict(observation, deterministic=deterministic)
+            assert action.dtype == model.action_space.dtype, f"{name} predicts {action.dtype}"
+
+
 # ---------------------------------------------------------------------------------------------------- save/load
 @case_names
 def test_save_load_restores_predictions_and_parameters(name: str, tmp_path: Path):

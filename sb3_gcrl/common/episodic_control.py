@@ -146,7 +146,8 @@ class EpisodicControlPolicy(BasePolicy):
         images are transposed channel-first (as ``VecTransposeImage`` did during training, so the memory
         sees the keys it was trained on) and a single observation gets a batch dimension. The actions
         have SB3's shapes: ``(n, *action_space.shape)`` for a batch, ``action_space.shape`` for one
-        observation (an array of shape ``()`` for ``Discrete``, as SB3's DQN returns).
+        observation (an array of shape ``()`` for ``Discrete``, as SB3's DQN returns), and the action space's
+        dtype (the memory computes in float32).
 
         :param observation: one observation or a batch (Dict observations: a dict of those).
         :param state: passed through (no recurrent state).
@@ -164,7 +165,7 @@ class EpisodicControlPolicy(BasePolicy):
         else:
             batch = obs_tensor.cpu().numpy()
         actions, _ = self.act(self.embedding(batch), deterministic=deterministic)
-        actions = np.asarray(actions).reshape((-1, *self.action_space.shape))  # type: ignore[misc]
+        actions = np.asarray(actions, dtype=self.action_space.dtype).reshape((-1, *self.action_space.shape))  # type: ignore[misc]
         if not vectorized:
             actions = actions.squeeze(axis=0)
         return actions, state
