@@ -272,6 +272,16 @@ def test_predict_on_a_bare_state_without_a_task_goal_refuses_clearly() -> None:
         TabularGoalEnv(ChainEnv(), task_goal=6)
 
 
+def test_the_policy_refuses_a_bare_state_naming_the_models_predict() -> None:
+    model = TabularIMGEP("TabularGoalPolicy", TabularGoalEnv(ChainTaskEnv(), terminate_at_goal=False, task_goal=5))
+    model.policy.q[:, 5, 1] = 1.0
+    for bare in (np.int64(2), np.arange(6)):
+        with pytest.raises(ValueError, match=r"goal-conditioned.*TabularIMGEP\.predict"):
+            model.policy.predict(bare)
+    goal_obs = {"observation": np.arange(6), "desired_goal": np.full(6, 5)}
+    np.testing.assert_array_equal(model.policy.predict(goal_obs)[0], model.predict(np.arange(6))[0])
+
+
 class RecordLocals(BaseCallback):
     def __init__(self) -> None:
         super().__init__()

@@ -66,6 +66,31 @@ class TabularGoalPolicy(BasePolicy):
         """Lowest-index argmax of ``Q[state, goal]``."""
         return int(self.q[state, goal].argmax())
 
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """SB3's ``predict`` on goal-conditioned (Dict) observations.
+
+        :param observation: a Dict observation (``observation`` and ``desired_goal``) or a batch of them.
+        :param state: unused (no recurrent state).
+        :param episode_start: unused.
+        :param deterministic: unused (the greedy policy is deterministic).
+        :return: the action(s) and ``state``.
+        :raises ValueError: for an observation that is not a Dict (a bare state of the plain env has no goal: the
+            model's ``predict`` commands the env's task goal for it).
+        """
+        if not isinstance(observation, dict):
+            raise ValueError(
+                "TabularGoalPolicy is goal-conditioned: it takes Dict observations {'observation': s, "
+                f"'desired_goal': g}}, got {type(observation).__name__} {observation!r}. For a bare state of the "
+                "plain tabular env, use the model's predict (TabularIMGEP.predict commands the env's own task goal)"
+            )
+        return super().predict(observation, state, episode_start, deterministic)
+
     def _predict(self, observation: dict[str, th.Tensor], deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
         states = observation["observation"].long().reshape(-1)
         goals = observation["desired_goal"].long().reshape(-1)
