@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from functools import partial
 
 import gymnasium as gym
@@ -280,6 +281,23 @@ def test_the_policy_refuses_a_bare_state_naming_the_models_predict() -> None:
             model.policy.predict(bare)
     goal_obs = {"observation": np.arange(6), "desired_goal": np.full(6, 5)}
     np.testing.assert_array_equal(model.policy.predict(goal_obs)[0], model.predict(np.arange(6))[0])
+
+
+def test_the_env_is_wrapped_in_a_monitor_as_sb3_does() -> None:
+    from stable_baselines3.common.monitor import Monitor
+
+    model = TabularIMGEP("TabularGoalPolicy", TabularGoalEnv(ChainTaskEnv(), terminate_at_goal=False, task_goal=5))
+    env = model.get_env()
+    assert env is not None and env.env_is_wrapped(Monitor) == [True]
+    model.policy.q[:, 5, 1] = 1.0  # always right, towards the task goal
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # evaluate_policy warns on an env without a Monitor
+        rewards, lengths = evaluate_policy(model, env, n_eval_episodes=2, return_episode_rewards=True)
+    assert len(rewards) == len(lengths) == 2 and all(0 < length <= 20 for length in lengths)
+    model.learn(30, log_interval=0)  # learning goes on beside the Monitor
+    already = TabularIMGEP("TabularGoalPolicy", Monitor(ChainTaskEnv()))
+    assert already.get_env().env_is_wrapped(Monitor) == [True]  # not wrapped twice: SB3's check of the chain
+    assert isinstance(already.get_env().envs[0], TabularGoalEnv)
 
 
 class RecordLocals(BaseCallback):

@@ -121,7 +121,6 @@ class TabularIMGEP(BaseAlgorithm):
             verbose=verbose,
             device=device,
             support_multi_env=False,
-            monitor_wrapper=False,
             seed=seed,
             supported_action_spaces=(gym.spaces.Discrete,),
         )
