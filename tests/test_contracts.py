@@ -39,6 +39,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
@@ -174,8 +175,26 @@ CASES: dict[str, Case] = {
         {"learning_starts": 50, "buffer_size": 1_000, "batch_size": 16, "train_freq": 4, "policy_kwargs": TINY_NET},
     ),
 }
+
+
+def _bit_flipping() -> gym.Env:
+    from stable_baselines3.common.envs import BitFlippingEnv
+
+    return BitFlippingEnv(n_bits=4)
+
+
+gym.register("GCRLTest/BitFlipping-v0", entry_point=_bit_flipping)  # Dict goal observations, Discrete actions
 #: extra observation spaces (Dict goal observations) on top of one case per algorithm
 EXTRA_CASES: dict[str, Case] = {
+    "mfec_dict": Case(
+        "mfec", "GCRLTest/BitFlipping-v0", "MultiInputPolicy", {"capacity_per_action": 500, "projection_dim": None}
+    ),
+    "two_memory_dqn_dict": Case(
+        "two_memory_dqn",
+        "GCRLTest/BitFlipping-v0",
+        "MultiInputPolicy",
+        {**CASES["two_memory_dqn"].kwargs, "ec_projection_dim": None},
+    ),
     "cec_dict": Case("cec", "GCRL/GrowingTreeGoal-v0", "MultiInputPolicy", {"capacity": 500}),
     "emac_dict": Case(
         "emac",
@@ -276,6 +295,40 @@ def test_constructor_takes_every_argument_of_its_sb3_base_at_the_default(name: s
         case.make(**arguments)
     except TypeError as error:
         pytest.fail(f"{case.cls.__name__} does not take an argument of {base} at its default: {error}")
+
+
+#: SB3's policy aliases and the observations each stands for (SB3's algorithms map them to their policies)
+SB3_POLICY_ALIASES = ("MlpPolicy", "CnnPolicy", "MultiInputPolicy")
+
+
+def sb3_alias_of(space: gym.spaces.Space) -> str | None:
+    """SB3's policy alias for observations of ``space``; None where SB3 has none (Discrete: tables)."""
+    if isinstance(space, gym.spaces.Dict):
+        return "MultiInputPolicy"
+    if is_image_space(space):
+        return "CnnPolicy"
+    return "MlpPolicy" if isinstance(space, gym.spaces.Box) else None
+
+
+@algo_names
+def test_policy_aliases_are_sb3s_names_for_the_observations_the_algorithm_supports(name: str):
+    """An observation kind a contract case trains on has SB3's alias for it, and every SB3 alias has such a case."""
+    cls = CASES[name].cls
+    cases = [case for case in ALL_CASES.values() if case.algo == name]
+    covered: set[str] = set()
+    for case in cases:
+        model = case.make()
+        alias = sb3_alias_of(model.observation_space)
+        if alias is None:
+            continue
+        covered.add(alias)
+        assert alias in cls.policy_aliases, f"{cls.__name__} trains on {model.observation_space} but lacks {alias!r}"
+        assert type(case.cls(alias, case.make_env(), **case.kwargs).policy) is type(model.policy)
+    aliased = {alias for alias in cls.policy_aliases if alias in SB3_POLICY_ALIASES}
+    assert aliased <= covered, (
+        f"{cls.__name__} has the aliases {sorted(aliased - covered)} but no contract case with those observations: "
+        "add one, or remove the alias if the algorithm does not support them"
+    )
 
 
 # ---------------------------------------------------------------------------------------------------- predict

@@ -260,6 +260,8 @@ def test_errors_name_the_fix():
     with pytest.raises(ValueError, match=r"n_sampled_goal must be an integer >= 0.*got -1"):  # SB3's HER buffer
         make_model(replay_buffer_kwargs={"n_sampled_goal": -1})
     with pytest.raises(TypeError, match="Dict goal observation"):
+        IBC("MultiInputPolicy", "Pendulum-v1")
+    with pytest.raises(ValueError, match="MlpPolicy unknown"):  # SB3's error: only Dict observations are supported
         IBC("MlpPolicy", "Pendulum-v1")
     with pytest.raises(ValueError, match="n_targets"):
         IBCCurriculumScheduler(Task(), near, n_targets=0)  # type: ignore[arg-type]

@@ -25,9 +25,10 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
-from stable_baselines3.sac.policies import SACPolicy
+from stable_baselines3.sac.policies import MultiInputPolicy, SACPolicy
 
 from sb3_gcrl.ibc.curriculum import BACK, IBCCurriculumScheduler, find_ibc_scheduler
 from sb3_gcrl.reset_free_baselines.forward_backward import ForwardBackwardSAC
@@ -56,6 +57,8 @@ class IBC(ForwardBackwardSAC):
     """
 
     log_prefix: ClassVar[str] = "ibc"
+    #: SB3's SAC aliases for the observations supported: Dict goal observations only
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MultiInputPolicy": MultiInputPolicy}
 
     def __init__(
         self,

@@ -40,7 +40,7 @@ SelfTabularIMGEP = TypeVar("SelfTabularIMGEP", bound="TabularIMGEP")
 class TabularIMGEP(BaseAlgorithm):
     """Goal-conditioned tabular Q-learning in an IMGEP loop, with optional post-exploration (Algorithm 3).
 
-    :param policy: ``"TabularGoalPolicy"`` (or the class).
+    :param policy: ``"TabularGoalPolicy"`` or ``"MultiInputPolicy"`` (the same; or the class).
     :param env: a tabular env (Discrete observation and actions, e.g. ``"GCRL/FourRoomsTabular-v0"``) or a
         :class:`~sb3_gcrl.imgep.TabularGoalEnv`; plain tabular envs are wrapped in one (MiniGrid: goals are cells).
         The model's ``observation_space`` is that goal env's Dict; :meth:`predict` also takes the plain env's
@@ -66,7 +66,8 @@ class TabularIMGEP(BaseAlgorithm):
     :param _init_setup_model: build the table now (False when loading).
     """
 
-    policy_aliases = {"TabularGoalPolicy": TabularGoalPolicy}  # noqa: RUF012
+    #: ``"MultiInputPolicy"`` is SB3's name for the policy of Dict observations (here the goal env's)
+    policy_aliases = {"TabularGoalPolicy": TabularGoalPolicy, "MultiInputPolicy": TabularGoalPolicy}  # noqa: RUF012
     policy: TabularGoalPolicy
 
     def __init__(

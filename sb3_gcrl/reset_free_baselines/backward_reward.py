@@ -17,8 +17,9 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
-from stable_baselines3.sac.policies import SACPolicy
+from stable_baselines3.sac.policies import MultiInputPolicy, SACPolicy
 from torch import nn
 
 from sb3_gcrl.reset_free_baselines.buffers import PhaseReplayBuffer, RelabeledRewards
@@ -45,6 +46,8 @@ class BackwardRewardSAC(ForwardBackwardSAC):
     :param kwargs: SB3's SAC arguments, see :class:`~sb3_gcrl.reset_free_baselines.ForwardBackwardSAC`.
     """
 
+    #: SB3's SAC aliases for the observations supported: Dict only (the reward model reads ``state_key``)
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MultiInputPolicy": MultiInputPolicy}
     _single_column_buffers: ClassVar[bool] = True
     _reward_model_loss_name: ClassVar[str] = "reward_model_loss"
     reward_model: nn.Module

@@ -7,6 +7,7 @@ from sb3_gcrl.two_memory.policies import (
     MinAtarDQNPolicy,
     TwoMemoryDQNPolicy,
     TwoMemoryMinAtarPolicy,
+    TwoMemoryMultiInputDQNPolicy,
     TwoMemoryMultiInputSACPolicy,
     TwoMemorySACPolicy,
 )
@@ -37,6 +38,7 @@ __all__ = [
     "TwoMemoryDQN",
     "TwoMemoryDQNPolicy",
     "TwoMemoryMinAtarPolicy",
+    "TwoMemoryMultiInputDQNPolicy",
     "TwoMemoryMultiInputSACPolicy",
     "TwoMemorySAC",
     "TwoMemorySACPolicy",

@@ -202,6 +202,15 @@ class TwoMemoryMinAtarPolicy(TwoMemoryDQNPolicy):
         super().__init__(*args, **kwargs)
 
 
+class TwoMemoryMultiInputDQNPolicy(TwoMemoryDQNPolicy):
+    """:class:`TwoMemoryDQNPolicy` for Dict observations (goal envs): SB3's ``CombinedExtractor`` for the Q-network;
+    the MFEC key concatenates ``observation`` and ``desired_goal`` (see :class:`~sb3_gcrl.memory.KeyEmbedding`)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("features_extractor_class", CombinedExtractor)
+        super().__init__(*args, **kwargs)
+
+
 class TwoMemorySACPolicy(KeyedMemoryDispatchMixin, SACPolicy):
     """2M policy for continuous actions: a CEC memory (2M-EC, thesis Ch. 4) and a SAC actor (2M-RL).
 

@@ -12,6 +12,7 @@ from sb3_gcrl.two_memory.dispatch import PecSpec, TwoMemoryAlgorithmMixin
 from sb3_gcrl.two_memory.policies import (
     TwoMemoryDQNPolicy,
     TwoMemoryMinAtarPolicy,
+    TwoMemoryMultiInputDQNPolicy,
     TwoMemoryMultiInputSACPolicy,
     TwoMemorySACPolicy,
 )
@@ -27,7 +28,8 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
     ``score_window`` training episodes (Eq. 5.6). Logs ``two_memory/*`` (see
     :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryAlgorithmMixin`).
 
-    Policies: ``"MlpPolicy"`` (SB3 MLP Q-network), ``"MinAtarPolicy"`` (the authors' CNN).
+    Policies: ``"MlpPolicy"`` (SB3 MLP Q-network), ``"MinAtarPolicy"`` (the authors' CNN), ``"MultiInputPolicy"``
+    (Dict observations, e.g. goal envs).
 
     :param policy: policy class or alias.
     :param env: env with a Discrete action space.
@@ -51,6 +53,7 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
         "MlpPolicy": TwoMemoryDQNPolicy,
         "MinAtarPolicy": TwoMemoryMinAtarPolicy,
+        "MultiInputPolicy": TwoMemoryMultiInputDQNPolicy,
     }
     policy: TwoMemoryDQNPolicy
     two_memory_policy_class = TwoMemoryDQNPolicy
