@@ -138,6 +138,9 @@ def test_errors_name_the_fix():
         CEC("CECPolicy", LineEnv(), exploration_final_eps=1.5)
     with pytest.raises(ValueError, match="NaN"):
         CEC("CECPolicy", LineEnv(nan=True)).learn(10)
+    nan_reward = gym.wrappers.TransformReward(LineEnv(), lambda reward: np.nan)
+    with pytest.raises(ValueError, match=r"Env 0 returned the reward nan at timestep 0: .*VecCheckNan"):
+        CEC("CECPolicy", nan_reward).learn(10)
 
 
 def test_check_env_on_the_test_env_and_registration():

@@ -555,3 +555,18 @@ def test_reset_free_envs_doc_example_runs_and_states_eval_horizon_once() -> None
     env = namespace["env"]
     assert isinstance(env, GoExploreWrapper) and env.go_steps == env.explore_steps == 25  # T_eval 50 // 2
     env.close()
+
+
+def test_a_nan_reward_of_the_sac_ports_goal_command_names_vec_check_nan():
+    """A non-finite compute_reward stops at the step, as CEC/MFEC's does, instead of a torch error inside SAC."""
+
+    class NanRewardGoalEnv(LineGoalEnv):
+        def compute_reward(self, achieved_goal: Any, desired_goal: Any, info: Any) -> np.ndarray:
+            return np.full(np.shape(super().compute_reward(achieved_goal, desired_goal, info)), np.nan)
+
+    env = ResetFreeWrapper(NanRewardGoalEnv(), hard_reset_every=100, eval_horizon=20)
+    env = GoExploreWrapper(env, "back_and_forth", dict(alpha=0.2, n_bins=4))
+    env.set_training_mode(True)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"compute_reward returned the reward nan .*VecCheckNan"):
+        env.step(env.action_space.sample())

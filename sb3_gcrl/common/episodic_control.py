@@ -33,7 +33,7 @@ from stable_baselines3.common.utils import LinearSchedule, safe_mean
 from sb3_gcrl.memory.embedding import KeyEmbedding
 from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
 from sb3_gcrl.memory.knn import KNNBackend
-from sb3_gcrl.memory.validation import check_float, check_int, check_optional_int
+from sb3_gcrl.memory.validation import check_finite_rewards, check_float, check_int, check_optional_int
 
 SelfEpisodicControlAlgorithm = TypeVar("SelfEpisodicControlAlgorithm", bound="EpisodicControlAlgorithm")
 
@@ -493,13 +493,11 @@ class EpisodicControlAlgorithm(BaseAlgorithm):
             keys = embed(self._last_obs)
             actions, hits = self.policy.act(keys, deterministic=False)
             new_obs, rewards, dones, infos = self.env.step(actions)
-            if not np.isfinite(rewards).all():
-                env_idx = int(np.flatnonzero(~np.isfinite(rewards))[0])
-                raise ValueError(
-                    f"Env {env_idx} returned the reward {rewards[env_idx]} at timestep {self.num_timesteps}: episodic "
-                    "memory values must be finite (a NaN would spread to every value compared with it); fix the env's "
-                    "reward, or wrap it with stable_baselines3.common.vec_env.VecCheckNan to find the source"
-                )
+            check_finite_rewards(
+                rewards,
+                f"at timestep {self.num_timesteps}",
+                "episodic memory values must be finite (a NaN would spread to every value compared with it)",
+            )
             self.num_timesteps += n_envs
             self._n_queries += n_envs
             self._n_hits += int(hits.sum())

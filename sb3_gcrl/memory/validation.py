@@ -81,6 +81,25 @@ def check_float(
     return value
 
 
+def check_finite_rewards(rewards: float | np.ndarray, when: str, why: str, source: str | None = None) -> None:
+    """Reject a NaN or infinite reward where it enters learning, naming where it came from and ``VecCheckNan``.
+
+    :param rewards: one reward, or one per env.
+    :param when: when it was returned (e.g. ``"at timestep 120"``).
+    :param why: what a non-finite reward would break.
+    :param source: what returned it (default: ``"Env <index of the first bad reward>"``).
+    :raises ValueError: if a reward is NaN or infinite.
+    """
+    values = np.asarray(rewards, dtype=np.float64).reshape(-1)
+    if np.isfinite(values).all():
+        return
+    index = int(np.flatnonzero(~np.isfinite(values))[0])
+    raise ValueError(
+        f"{source or f'Env {index}'} returned the reward {values[index]} {when}: {why}; fix the env's reward, or wrap "
+        "it with stable_baselines3.common.vec_env.VecCheckNan to find the source"
+    )
+
+
 def check_finite_returns(returns: np.ndarray) -> None:
     """Reject NaN or infinite returns before they reach a memory (one NaN would spread to every value
     that is compared with it, silently).

@@ -19,6 +19,7 @@ binned visited-goal schedulers refuse them at construction).
 
 from __future__ import annotations
 
+import math
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -27,6 +28,7 @@ from gymnasium import spaces
 
 from sb3_gcrl.goals.schedulers import GoalScheduler, make_scheduler
 from sb3_gcrl.goals.task_goals import GoalKind, TaskRelevantGoals
+from sb3_gcrl.memory.validation import check_finite_rewards
 from sb3_gcrl.wrappers.goal_env import check_goal_env
 from sb3_gcrl.wrappers.mode import TrainingModeMixin, find_wrapper
 
@@ -221,6 +223,13 @@ class GoalCommandWrapper(
         achieved = obs["achieved_goal"]
         self.scheduler.observe(achieved)
         reward = scalar_reward(self._compute_reward(achieved, self._goal_obs, info))
+        if not math.isfinite(reward):  # (math, not numpy: the hot path) a NaN would reach the networks' losses
+            check_finite_rewards(
+                reward,
+                f"for the commanded goal {self.goal}",
+                "the agent learns from it (a NaN makes the networks' losses and actions NaN)",
+                source="The env's compute_reward",
+            )
         if self.success_distance is None:
             if self._success_reward is None:
                 self._success_reward = scalar_reward(self._compute_reward(achieved, achieved, info))
