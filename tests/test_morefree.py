@@ -687,7 +687,7 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
     )
 
     env = make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0)
-    model = tiny(env, learning_starts=40)
+    model = tiny(env, learning_starts=30)
     callback = MoReFreeDiagnosticsCallback(diagnose_freq=50, n=32)
     model.learn(200, callback=callback)
     assert [t for t, _ in callback.history] == [50, 100, 150, 200]
