@@ -13,6 +13,7 @@ from __future__ import annotations
 import inspect
 import io
 import warnings
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,7 @@ import pytest
 import torch as th
 from envs import MOREFREE_TINY_NET
 from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
+from stable_baselines3.common import save_util
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import (
     BaseCallback,
@@ -44,6 +46,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.algorithms import ALGORITHMS, load_algorithm
+from sb3_gcrl.common.saving import SAVED_BY_ENTRY, ModelFileError
 
 N_STEPS = 300
 
@@ -450,6 +453,80 @@ def test_save_to_a_file_object_and_without_extension(name: str, tmp_path: Path):
     model.save(tmp_path / "no_extension")  # SB3 appends .zip
     loaded = case.cls.load(tmp_path / "no_extension")
     np.testing.assert_array_equal(loaded.predict(observations, deterministic=True)[0], expected)
+
+
+def _rewrite_zip(source: Path, target: Path, data: Callable[[bytes], bytes | None]) -> None:
+    """Copy the model archive ``source`` to ``target`` with its ``data`` entry passed through ``data`` (None: left
+    out)."""
+    with zipfile.ZipFile(source) as archive, zipfile.ZipFile(target, "w") as copy:
+        for entry in archive.namelist():
+            content = archive.read(entry)
+            content = data(content) if entry == "data" else content
+            if content is not None:
+                copy.writestr(entry, content)
+
+
+@algo_names
+def test_load_of_a_damaged_or_foreign_file_says_what_the_file_is_and_what_to_do(name: str, tmp_path: Path):
+    case = CASES[name]
+    case.make().save(tmp_path / "model.zip")
+    content = (tmp_path / "model.zip").read_bytes()
+    (tmp_path / "truncated.zip").write_bytes(content[: len(content) // 2])
+    _rewrite_zip(tmp_path / "model.zip", tmp_path / "no_data.zip", lambda data: None)
+    _rewrite_zip(tmp_path / "model.zip", tmp_path / "damaged_data.zip", lambda data: data[: len(data) // 2])
+    expected = {
+        "truncated": "not a zip archive, or a truncated one.*re-save the model, or restore",
+        "no_data": "without a 'data' entry, so it is not a Stable-Baselines3 model file",
+        "damaged_data": "damaged data section.*re-save the model, or restore",
+    }
+    for file, message in expected.items():
+        with pytest.raises(ModelFileError, match=message):
+            case.cls.load(tmp_path / f"{file}.zip")
+    # a file saved by another of our algorithms names the class to load it with
+    other = CASES["cec" if name != "cec" else "mfec"]
+    other.make().save(tmp_path / "other.zip")
+    with pytest.raises(
+        ModelFileError,
+        match=rf"a model of {other.cls.__name__}, not of {case.cls.__name__}.*load it with {other.cls.__name__}\.load",
+    ):
+        case.cls.load(tmp_path / "other.zip")
+    # a file saved before the class was recorded in it still loads
+    with zipfile.ZipFile(tmp_path / "model.zip") as archive:
+        assert archive.read(SAVED_BY_ENTRY).decode() == case.cls.__name__
+    with zipfile.ZipFile(tmp_path / "model.zip") as archive, zipfile.ZipFile(tmp_path / "older.zip", "w") as copy:
+        for entry in archive.namelist():
+            if entry != SAVED_BY_ENTRY:
+                copy.writestr(entry, archive.read(entry))
+    assert case.cls.load(tmp_path / "older.zip").num_timesteps == 0
+
+
+@algo_names
+def test_a_failure_during_save_leaves_the_previous_file_intact(
+    name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    case = CASES[name]
+    model = case.make()
+    model.save(tmp_path / "model.zip")
+    before = (tmp_path / "model.zip").read_bytes()
+    model.learn(100)
+
+    def killed(*args: Any, **kwargs: Any) -> Any:
+        raise KeyboardInterrupt  # as a kill in the middle of the archive (after the data and the parameters)
+
+    monkeypatch.setattr(save_util, "get_system_info", killed)
+    with pytest.raises(KeyboardInterrupt):
+        model.save(tmp_path / "model.zip")
+    assert (tmp_path / "model.zip").read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.zip"]  # no temporary file left behind
+    assert case.cls.load(tmp_path / "model.zip").num_timesteps == 0
+
+
+def test_sb3s_own_load_of_an_episodic_control_file_names_the_algorithm(tmp_path: Path):
+    for name, base in (("cec", SAC), ("mfec", DQN)):
+        CASES[name].make().save(tmp_path / f"{name}.zip")
+        algorithm = CASES[name].cls.__name__
+        with pytest.raises(TypeError, match=rf"policy of {algorithm}: load {algorithm} models with {algorithm}.load"):
+            base.load(tmp_path / f"{name}.zip")
 
 
 @case_names

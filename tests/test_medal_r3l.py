@@ -207,6 +207,26 @@ def test_save_load_restores_both_policies_the_reward_model_and_both_buffers(
     loaded.learn(20, reset_num_timesteps=False, callback=ResetFreeCallback())
 
 
+def test_a_failure_while_saving_the_buffers_leaves_the_previous_file_intact(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    import pickle
+
+    model = make_model(R3L)
+    model.save_replay_buffer(tmp_path / "buffers.pkl")
+    before = (tmp_path / "buffers.pkl").read_bytes()
+    model.learn(40, callback=ResetFreeCallback())
+
+    def killed(*args: Any, **kwargs: Any) -> None:
+        raise KeyboardInterrupt  # as a kill while the pickle is written
+
+    monkeypatch.setattr(pickle, "dump", killed)
+    with pytest.raises(KeyboardInterrupt):
+        model.save_replay_buffer(tmp_path / "buffers.pkl")
+    assert (tmp_path / "buffers.pkl").read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["buffers.pkl"]  # no temporary file left behind
+
+
 def test_load_replay_buffer_rejects_a_single_buffer(tmp_path: Path):
     from stable_baselines3.common.save_util import save_to_pkl
 

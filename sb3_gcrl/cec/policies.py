@@ -10,6 +10,7 @@ from gymnasium import spaces
 
 from sb3_gcrl.common.actors import cec_actions
 from sb3_gcrl.common.episodic_control import EpisodicControlPolicy
+from sb3_gcrl.common.saving import refuse_learning_rate_schedule
 from sb3_gcrl.memory.cec_memory import CECMemory
 from sb3_gcrl.memory.knn import KNNBackend
 from sb3_gcrl.memory.validation import check_float
@@ -38,6 +39,8 @@ class CECPolicy(EpisodicControlPolicy):
     :param projection_dim: random-projection dimension (``None``: raw observations).
     :param observation_keys: Dict observation keys forming the key.
     :param seed: seed of the projection and of action sampling.
+    :raises TypeError: naming ``CEC.load`` when SB3's own ``load`` (``SAC.load``) builds this policy from a CEC
+        model file (it passes a learning-rate schedule third).
     """
 
     action_space: spaces.Box
@@ -58,6 +61,7 @@ class CECPolicy(EpisodicControlPolicy):
         observation_keys: Sequence[str] | None = None,
         seed: int | None = None,
     ) -> None:
+        refuse_learning_rate_schedule(type(self).__name__, "capacity", capacity, "CEC")
         super().__init__(
             observation_space, action_space, projection_dim, observation_keys, seed, knn_backend, rebuild_threshold
         )

@@ -30,6 +30,7 @@ from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import LinearSchedule, safe_mean
 
+from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.memory.embedding import KeyEmbedding
 from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
 from sb3_gcrl.memory.knn import KNNBackend
@@ -202,7 +203,7 @@ class EpisodicControlPolicy(BasePolicy):
         return data
 
 
-class EpisodicControlAlgorithm(BaseAlgorithm):
+class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
     """Learn loop of episodic control: act with the memory, update it after every finished episode.
 
     Subclasses set ``policy_aliases`` and implement :meth:`_policy_memory_kwargs`,

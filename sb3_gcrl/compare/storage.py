@@ -25,9 +25,7 @@ import io
 import json
 import os
 import shutil
-import stat
 import sys
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -35,6 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from sb3_gcrl.common.saving import atomic_write_bytes, atomic_write_text
 from sb3_gcrl.compare.evaluation import EVALUATION_COLUMNS
 from sb3_gcrl.compare.run import RunResult, RunSpec
 from sb3_gcrl.post_exploration.evaluation import ALL_GOALS_COLUMNS
@@ -49,44 +48,6 @@ LOCK_FILE = "compare.lock"
 REQUIRED_EVALUATION_COLUMNS = ("timesteps", "mean_return")
 #: columns every ``all_goals.csv`` must have, with numbers in every row
 REQUIRED_ALL_GOALS_COLUMNS = ("timesteps", "all_goals_success")
-
-
-def _current_umask() -> int:
-    """The process's umask (read by setting it and putting it back: Python has no getter)."""
-    mask = os.umask(0o022)  # not 0 meanwhile: a file another thread creates in between is not world-writable
-    os.umask(mask)
-    return mask
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file and a rename, so readers never see half a file.
-
-    The file gets the mode ``open(path, "wb")`` would give it: an existing file's mode, else ``0o666`` less the
-    umask (``0o644`` under the usual umask ``0o022``), not the ``0o600`` of the temporary file.
-
-    :param path: destination.
-    :param data: content.
-    """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        mode = stat.S_IMODE(path.stat().st_mode)
-    except FileNotFoundError:
-        mode = 0o666 & ~_current_umask()
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, mode)
-        with os.fdopen(fd, "wb") as file:
-            file.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """:func:`atomic_write_bytes` for text (UTF-8)."""
-    atomic_write_bytes(path, text.encode())
 
 
 def evaluations_to_csv(evaluations: list[dict[str, float]], columns: tuple[str, ...] = EVALUATION_COLUMNS) -> str:

@@ -18,6 +18,7 @@ from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 from torch.nn import functional as F
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
+from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.emac.memory import NeighbourWeighting, check_neighbour_weighting
 from sb3_gcrl.emac.policies import EMACPolicy, MultiInputEMACPolicy
 from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
@@ -26,7 +27,7 @@ from sb3_gcrl.memory.validation import check_float, check_int, check_optional_in
 from sb3_gcrl.two_memory.dispatch import truncated_ends
 
 
-class EMAC(ClassNamedRunsMixin, TD3):
+class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
     """Episodic Memory Actor-Critic: DDPG whose critic also regresses onto an episodic memory's Monte-Carlo estimate.
 
     Critic loss of the paper, for each critic ``Q_i`` (one, as in DDPG, by default)::

@@ -28,6 +28,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.utils import safe_mean
 from stable_baselines3.common.vec_env import DummyVecEnv
 
+from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.goals.goal_space import BinnedGoalSpace
 from sb3_gcrl.imgep.policies import TabularGoalPolicy
 from sb3_gcrl.imgep.tabular_goal_env import TabularGoalEnv
@@ -37,7 +38,7 @@ from sb3_gcrl.post_exploration.rules import PostExplorationRule, ProportionalSte
 SelfTabularIMGEP = TypeVar("SelfTabularIMGEP", bound="TabularIMGEP")
 
 
-class TabularIMGEP(BaseAlgorithm):
+class TabularIMGEP(ModelFileMixin, BaseAlgorithm):
     """Goal-conditioned tabular Q-learning in an IMGEP loop, with optional post-exploration (Algorithm 3).
 
     :param policy: ``"TabularGoalPolicy"`` or ``"MultiInputPolicy"`` (the same; or the class).

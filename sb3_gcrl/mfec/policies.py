@@ -10,6 +10,7 @@ from gymnasium import spaces
 
 from sb3_gcrl.common.actors import mfec_actions
 from sb3_gcrl.common.episodic_control import EpisodicControlPolicy
+from sb3_gcrl.common.saving import refuse_learning_rate_schedule
 from sb3_gcrl.memory.knn import KNNBackend
 from sb3_gcrl.memory.mfec_memory import MFECMemory
 
@@ -31,6 +32,8 @@ class MFECPolicy(EpisodicControlPolicy):
     :param projection_dim: random-projection dimension (``None``: raw observations).
     :param observation_keys: Dict observation keys forming the key.
     :param seed: seed of the projection and of action sampling.
+    :raises TypeError: naming ``MFEC.load`` when SB3's own ``load`` (``SAC.load``) builds this policy from a MFEC
+        model file (it passes a learning-rate schedule third).
     """
 
     action_space: spaces.Discrete
@@ -47,6 +50,7 @@ class MFECPolicy(EpisodicControlPolicy):
         observation_keys: Sequence[str] | None = None,
         seed: int | None = None,
     ) -> None:
+        refuse_learning_rate_schedule(type(self).__name__, "capacity_per_action", capacity_per_action, "MFEC")
         super().__init__(
             observation_space, action_space, projection_dim, observation_keys, seed, knn_backend, rebuild_threshold
         )

@@ -40,6 +40,7 @@ from stable_baselines3.common.utils import safe_mean
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
 
 from sb3_gcrl.common.runs import warn_if_learning_never_starts
+from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
 from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler, find_agent_hooks
@@ -52,7 +53,7 @@ SelfMoReFree = TypeVar("SelfMoReFree", bound="MoReFree")
 DEFAULT_ALPHA = 0.2
 
 
-class MoReFree(BaseAlgorithm):
+class MoReFree(ModelFileMixin, BaseAlgorithm):
     """Model-based reset-free goal-conditioned agent (MoReFree, thesis Ch. 3), PEG's state-input agent.
 
     Defaults are PEG's point-maze settings (the thesis preset); the CPU preset is in

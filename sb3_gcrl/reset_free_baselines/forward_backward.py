@@ -34,13 +34,14 @@ from gymnasium import spaces
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
-from stable_baselines3.common.save_util import load_from_pkl, save_to_pkl
+from stable_baselines3.common.save_util import load_from_pkl
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
+from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
 from sb3_gcrl.her import check_n_sampled_goal
 
 #: the env attribute that tells a forward-backward env (``ForwardBackwardWrapper``) apart
@@ -114,7 +115,7 @@ class _PhaseRouter:
                 )
 
 
-class ForwardBackwardSAC(ClassNamedRunsMixin, SAC):
+class ForwardBackwardSAC(ModelFileMixin, ClassNamedRunsMixin, SAC):
     """A forward SAC (this object) and a backward SAC (:attr:`backward`) alternating by the env's phases.
 
     Use it on a goal env wrapped in :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` (``segment_length`` = phase length)
@@ -440,11 +441,12 @@ class ForwardBackwardSAC(ClassNamedRunsMixin, SAC):
         )
 
     def save_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase) -> None:
-        """Save both replay buffers (forward and backward) in one pickle file.
+        """Save both replay buffers (forward and backward) in one pickle file, atomically (a crash or kill during
+        the save leaves the previous file intact).
 
-        :param path: file path or file object.
+        :param path: file path (``.pkl`` added when it has no suffix) or file object.
         """
-        save_to_pkl(path, {"forward": self.replay_buffer, "backward": self.backward_buffer}, self.verbose)
+        atomic_save_to_pkl(path, {"forward": self.replay_buffer, "backward": self.backward_buffer}, self.verbose)
 
     def load_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase, truncate_last_traj: bool = True) -> None:
         """Load both replay buffers saved by :meth:`save_replay_buffer` (HER buffers get the model's env).

@@ -12,6 +12,7 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
+from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.tabular.policies import check_tabular_spaces
 from sb3_gcrl.two_memory.schedules import check_unit_interval
 
@@ -63,7 +64,7 @@ def check_tabular_hyperparameters(
             raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
 
 
-class TabularAlgorithm(ClassNamedRunsMixin, OffPolicyAlgorithm):
+class TabularAlgorithm(ModelFileMixin, ClassNamedRunsMixin, OffPolicyAlgorithm):
     """Off-policy tabular agent with epsilon-greedy exploration drawn per env (SB3's DQN draws one coin per batch).
 
     Defaults follow the authors' tabular 2M code (public repo yangzhao-666/2m): replay buffer 5e4, batch 32 every

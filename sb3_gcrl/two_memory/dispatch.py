@@ -31,6 +31,7 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.policies import BasePolicy
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
+from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
 from sb3_gcrl.memory.validation import check_int
 from sb3_gcrl.two_memory.buffers import SourceTaggedReplayBuffer
@@ -326,7 +327,7 @@ def truncated_ends(dones: np.ndarray, infos: list[dict[str, Any]]) -> np.ndarray
     return np.array([bool(done) and info.get("TimeLimit.truncated", False) for done, info in zip(dones, infos)])
 
 
-class TwoMemoryAlgorithmMixin(ClassNamedRunsMixin):
+class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
     """Algorithm side of 2M for an SB3 ``OffPolicyAlgorithm`` whose policy is a :class:`TwoMemoryDispatchMixin`.
 
     Mix in first (``class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN)``). It
