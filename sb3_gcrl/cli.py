@@ -13,6 +13,7 @@ read from the shipped ``zoo_configs/<algo>.yml`` instead of the zoo's own (which
 from __future__ import annotations
 
 import importlib
+import itertools
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -193,14 +194,66 @@ def _check_config(argv: list[str]) -> None:
         raise SystemExit(f"sb3-gcrl train: {error}") from None
 
 
+def _option_values(argv: Sequence[str], flag: str) -> list[str]:
+    """Values of a ``nargs="+"`` option (``--gym-packages a b``) in ``argv``: the words after ``flag`` up to the next
+    option."""
+    values: list[str] = []
+    for i, arg in enumerate(argv):
+        if arg == flag:
+            values.extend(itertools.takewhile(lambda word: not word.startswith("-"), argv[i + 1 :]))
+    return values
+
+
+def display_missing() -> bool:
+    """Whether this is a Linux machine without a display (neither ``DISPLAY`` nor ``WAYLAND_DISPLAY`` set), where a
+    window cannot open: MuJoCo's GLFW viewer then aborts the process (exit code 134)."""
+    return sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def renders_to_a_window(env_id: str, gym_packages: Sequence[str] = ()) -> bool:
+    """Whether ``env_id`` has the ``"human"`` render mode (a window: MuJoCo's viewer, pygame) that RL-Zoo's ``enjoy``
+    asks for unless ``--no-render``.
+
+    :param env_id: the env of ``--env``.
+    :param gym_packages: the modules of ``--gym-packages`` (they register ``env_id``).
+    :return: False also for an env that cannot be made here (RL-Zoo then reports it).
+    """
+    import gymnasium as gym
+
+    import sb3_gcrl  # noqa: F401  (registers the environments)
+
+    for package in gym_packages:
+        importlib.import_module(package)
+    try:
+        env = gym.make(env_id)
+    except gym.error.Error:
+        return False
+    try:
+        return "human" in env.metadata.get("render_modes", [])
+    finally:
+        env.close()
+
+
 def enjoy(argv: list[str]) -> int:
     """``sb3-gcrl enjoy``: RL-Zoo's ``enjoy`` with this package's algorithms available.
+
+    On a Linux machine without a display (:func:`display_missing`), an env that renders to a window runs without
+    rendering (RL-Zoo's ``--no-render``, with a note), instead of aborting in MuJoCo's GLFW viewer.
 
     :param argv: ``rl_zoo3 enjoy`` arguments.
     :return: exit code.
     """
     from rl_zoo3.enjoy import enjoy as zoo_enjoy
 
+    if "--no-render" not in argv and display_missing():
+        env_id = _option_value(argv, "--env") or "CartPole-v1"  # RL-Zoo's default env
+        if renders_to_a_window(env_id, _option_values(argv, "--gym-packages")):
+            print(
+                f"sb3-gcrl enjoy: no display (DISPLAY and WAYLAND_DISPLAY unset), so {env_id} runs without rendering "
+                "(--no-render); to watch it, run under a display (e.g. `xvfb-run -a sb3-gcrl enjoy ...`)",
+                file=sys.stderr,
+            )
+            argv = [*argv, "--no-render"]
     return _run_zoo_script(zoo_enjoy, "sb3-gcrl enjoy", argv)
 
 

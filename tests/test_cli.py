@@ -192,6 +192,48 @@ def test_sb3_gcrl_train_then_enjoy_our_algorithm(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr[-3000:]
 
 
+@pytest.mark.parametrize(
+    ("env_id", "display", "no_render"),
+    [("GCRL/PointUMaze-v0", None, True), ("GCRL/PointUMaze-v0", ":0", False), ("GCRL/GrowingTree-v0", None, False)],
+)
+def test_enjoy_without_a_display_runs_window_envs_without_rendering(
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    env_id: str,
+    display: str | None,
+    no_render: bool,
+) -> None:
+    import rl_zoo3.enjoy
+
+    seen: list[list[str]] = []
+    monkeypatch.setattr(rl_zoo3.enjoy, "enjoy", lambda: seen.append(list(sys.argv)))
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    if display is None:
+        monkeypatch.delenv("DISPLAY", raising=False)
+    else:
+        monkeypatch.setenv("DISPLAY", display)
+    assert main(["enjoy", "--algo", "cec", "--env", env_id, "-f", "logs"]) == 0
+    assert ("--no-render" in seen[0]) is no_render  # GrowingTree has no window to open ("ansi", "rgb_array")
+    assert ("no display" in capsys.readouterr().err) is no_render
+
+
+def test_enjoy_of_a_mujoco_env_on_a_machine_without_a_display_does_not_abort(tmp_path: Path) -> None:
+    logs = tmp_path / "logs"
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    train = ["train", "--algo", "cec", "--env", "GCRL/PointUMaze-v0", "-n", "200", "--eval-freq", "-1"]
+    result = subprocess.run(
+        [sys.executable, "-m", "sb3_gcrl", *train, "-f", str(logs)], capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    enjoy = ["enjoy", "--algo", "cec", "--env", "GCRL/PointUMaze-v0", "-f", str(logs), "-n", "20"]
+    result = subprocess.run(
+        [sys.executable, "-m", "sb3_gcrl", *enjoy], capture_output=True, text=True, timeout=300, env=env
+    )
+    assert result.returncode == 0, result.stderr[-3000:]  # 134 (SIGABRT in GLFW) before
+    assert "runs without rendering (--no-render)" in result.stderr
+
+
 def test_conf_takes_the_name_of_a_shipped_config(tmp_path, capsys):
     from sb3_gcrl.cli import _with_default_config, shipped_config
 
