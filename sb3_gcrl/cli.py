@@ -35,7 +35,8 @@ COMMANDS: dict[str, str] = {
 USAGE = """usage: sb3-gcrl <command> [options]
 
 commands:
-  train       train with RL-Zoo (every `rl_zoo3 train` flag), our algorithms included
+  train       train with RL-Zoo (every `rl_zoo3 train` flag), our algorithms included; torch runs on one
+              thread unless --num-threads N is given
   enjoy       run a trained agent with RL-Zoo's `enjoy` (every `rl_zoo3 enjoy` flag)
   compare     compare methods x envs x seeds and write curves, plots, a table and a report
   list-envs   print the registered GCRL/ environments with their spaces
@@ -141,15 +142,35 @@ def _run_zoo_script(script: Callable[[], None], prog: str, argv: list[str]) -> i
     return 0
 
 
+#: torch threads of ``sb3-gcrl train`` without ``--num-threads`` (RL-Zoo's default, -1, leaves torch's own count: one
+#: per core, much slower than one thread for the small networks of these agents)
+DEFAULT_NUM_THREADS = 1
+NUM_THREADS_NOTE = (
+    f"sb3-gcrl train: torch runs on {DEFAULT_NUM_THREADS} thread unless --num-threads N is given (N = -1: torch's "
+    "default count, as in rl_zoo3 train)"
+)
+
+
+def _with_default_num_threads(argv: list[str]) -> list[str]:
+    """``argv`` with ``--num-threads 1`` (:data:`DEFAULT_NUM_THREADS`) added when it sets no thread count."""
+    if _option_value(argv, "--num-threads") is not None:
+        return argv
+    return [*argv, "--num-threads", str(DEFAULT_NUM_THREADS)]
+
+
 def train(argv: list[str]) -> int:
     """``sb3-gcrl train``: RL-Zoo's ``train`` with this package's algorithms and configs available.
+
+    Unlike ``rl_zoo3 train``, torch runs on one thread unless ``--num-threads`` is given (:data:`DEFAULT_NUM_THREADS`).
 
     :param argv: ``rl_zoo3 train`` arguments.
     :return: exit code.
     """
     from rl_zoo3.train import train as zoo_train
 
-    argv = _with_default_config(argv)
+    if "-h" in argv or "--help" in argv:
+        print(NUM_THREADS_NOTE + "\n")
+    argv = _with_default_num_threads(_with_default_config(argv))
     _check_config(argv)
     return _run_zoo_script(zoo_train, "sb3-gcrl train", argv)
 

@@ -234,6 +234,28 @@ def test_enjoy_of_a_mujoco_env_on_a_machine_without_a_display_does_not_abort(tmp
     assert "runs without rendering (--no-render)" in result.stderr
 
 
+def test_train_runs_torch_on_one_thread_unless_num_threads_is_given(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import torch
+
+    threads: list[int] = []
+    monkeypatch.setattr(torch, "set_num_threads", threads.append)
+    run = ["train", "--algo", "cec", "--env", "GCRL/GrowingTree-v0", "-n", "50", "--eval-freq", "-1"]
+    assert main([*run, "-f", str(tmp_path / "logs")]) == 0  # a tiny run through RL-Zoo's own train
+    assert threads == [1]
+
+    import rl_zoo3.train
+
+    seen: list[list[str]] = []
+    monkeypatch.setattr(rl_zoo3.train, "train", lambda: seen.append(list(sys.argv)))
+    for given in (["--num-threads", "4"], ["--num-threads=-1"]):  # the user's count, -1 included, is kept
+        main([*run, *given])
+        assert sum(arg.startswith("--num-threads") for arg in seen[-1]) == 1 and given[-1] in seen[-1]
+    main(["train", "--help"])  # printed before RL-Zoo's own help
+    assert "torch runs on 1 thread unless --num-threads N is given" in capsys.readouterr().out
+
+
 def test_conf_takes_the_name_of_a_shipped_config(tmp_path, capsys):
     from sb3_gcrl.cli import _with_default_config, shipped_config
 

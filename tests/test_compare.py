@@ -191,6 +191,17 @@ def test_changed_settings_are_not_silently_reused(tmp_path):
         compare([f"sac:{configs['sac']}"], ["Pendulum-v1"], seeds=[0], n_timesteps=300, output=tmp_path / "out")
 
 
+def test_a_run_uses_one_torch_thread(tmp_path, monkeypatch):
+    import torch
+
+    threads = []
+    monkeypatch.setattr(torch, "set_num_threads", threads.append)
+    configs = write_configs(tmp_path)
+    spec = plan_runs([parse_method(f"sac:{configs['broken']}")], ["Pendulum-v1"], [0], 200, 100, 1, {}, (), tmp_path)
+    execute_run(spec[0], tmp_path / "run", io.StringIO())  # what each worker process runs
+    assert threads == [1]
+
+
 def test_failing_run_returns_its_traceback_instead_of_raising(tmp_path):
     configs = write_configs(tmp_path)
     spec = plan_runs([parse_method(f"sac:{configs['broken']}")], ["Pendulum-v1"], [0], 200, 100, 1, {}, (), tmp_path)

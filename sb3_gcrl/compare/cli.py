@@ -34,7 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
         f"Without arguments: the '{DEFAULT_PRESET}' preset.",
         epilog="A method is ALGO (hyperparameters found in zoo_configs/ALGO*.yml, then RL-Zoo's own), "
         "ALGO:CONFIG (a .yml path or a zoo_configs/ stem) or LABEL=ALGO[:CONFIG]. Re-running the same command "
-        "resumes: finished runs are kept and skipped.",
+        "resumes: finished runs are kept and skipped. Each run is a process with one torch (and OpenMP) thread.",
     )
     parser.add_argument("--preset", help="start from a named comparison (see --list-presets); options override it")
     parser.add_argument("--list-presets", action="store_true", help="print the presets and exit")
