@@ -26,12 +26,16 @@ import warnings
 import zipfile
 import zlib
 from collections.abc import Iterable, Iterator
-from typing import Any
+from typing import Any, TypeVar
 
+import torch as th
 from stable_baselines3.common.save_util import open_path, save_to_pkl
+from stable_baselines3.common.type_aliases import GymEnv
 
 #: archive entry holding the name of the class that saved the model (SB3's ``load`` ignores unknown entries)
 SAVED_BY_ENTRY = "sb3_gcrl_class"
+
+SelfModelFileMixin = TypeVar("SelfModelFileMixin", bound="ModelFileMixin")
 
 
 class ModelFileError(ValueError):
@@ -260,15 +264,15 @@ class ModelFileMixin:
 
     @classmethod
     def load(
-        cls,
+        cls: type[SelfModelFileMixin],
         path: str | pathlib.Path | io.BufferedIOBase,
-        env: Any = None,
-        device: Any = "auto",
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
         custom_objects: dict[str, Any] | None = None,
         print_system_info: bool = False,
         force_reset: bool = True,
         **kwargs: Any,
-    ) -> Any:
+    ) -> SelfModelFileMixin:
         """SB3's ``load``, after a check of the file that names what is wrong with it (:func:`check_model_file`).
 
         :param path: file path (with or without ``.zip``) or a file object.
