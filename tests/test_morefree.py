@@ -419,6 +419,31 @@ def test_save_load_gives_identical_actions_and_restores_the_world_model(tmp_path
     loaded.learn(40, reset_num_timesteps=False)  # the empty buffer refills before training resumes
 
 
+def test_replay_buffer_save_load_round_trip_and_an_interrupted_save_keeps_the_previous_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    import pickle
+
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0))
+    model.learn(80)
+    model.save_replay_buffer(tmp_path / "buffer.pkl")
+    before = (tmp_path / "buffer.pkl").read_bytes()
+    size = model.replay_buffer.size()
+    model.learn(40, reset_num_timesteps=False)
+
+    def killed(*args: Any, **kwargs: Any) -> None:
+        raise KeyboardInterrupt  # as a kill while the pickle is written
+
+    monkeypatch.setattr(pickle, "dump", killed)
+    with pytest.raises(KeyboardInterrupt):
+        model.save_replay_buffer(tmp_path / "buffer.pkl")
+    assert (tmp_path / "buffer.pkl").read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["buffer.pkl"]  # no temporary file left behind
+    monkeypatch.undo()
+    model.load_replay_buffer(tmp_path / "buffer.pkl")
+    assert model.replay_buffer.size() == size
+
+
 def test_predict_filters_the_latent_across_an_episode_with_episode_start():
     env = make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=2, seed=0)
     model = tiny(env)

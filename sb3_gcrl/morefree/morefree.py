@@ -40,7 +40,7 @@ from stable_baselines3.common.utils import safe_mean
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
 
 from sb3_gcrl.common.runs import warn_if_learning_never_starts
-from sb3_gcrl.common.saving import ModelFileMixin
+from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
 from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler, find_agent_hooks
@@ -276,10 +276,8 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
             self._rng = np.random.default_rng(seed)
 
     def save_replay_buffer(self, path: str) -> None:
-        """Pickle the sequence replay buffer (a trusted file only can be loaded back)."""
-        from stable_baselines3.common.save_util import save_to_pkl
-
-        save_to_pkl(path, self.replay_buffer, self.verbose)
+        """Pickle the sequence replay buffer, atomically (a trusted file only can be loaded back)."""
+        atomic_save_to_pkl(path, self.replay_buffer, self.verbose)
 
     def load_replay_buffer(self, path: str) -> None:
         """Load a buffer saved by :meth:`save_replay_buffer` (pickle: load trusted files only)."""
