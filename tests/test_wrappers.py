@@ -321,6 +321,46 @@ def test_is_success_adapter() -> None:
         env.step(env.action_space.sample())
 
 
+def _maze_with_success_logged(wrappers: list[type[gym.Wrapper]], training: bool) -> Any:
+    """PointMaze built as RL-Zoo builds it: Monitor(info_keywords=("is_success",)) inside, env_wrapper above.
+
+    Evaluation episodes end after 20 steps, training segments after 10.
+    """
+    from stable_baselines3.common.env_util import make_vec_env
+
+    def wrap(env: gym.Env) -> gym.Env:
+        for wrapper in wrappers:
+            env = wrapper(env, eval_horizon=20, segment_length=10) if wrapper is ResetFreeWrapper else wrapper(env)
+        return env
+
+    vec_env = make_vec_env(
+        "PointMaze_UMaze-v3", n_envs=1, seed=0, wrapper_class=wrap, monitor_kwargs=dict(info_keywords=("is_success",))
+    )
+    vec_env.env_method("set_training_mode", training)
+    return vec_env
+
+
+@pytest.mark.parametrize("training", [False, True])
+def test_is_success_adapter_above_monitor_feeds_its_info_keywords(training: bool) -> None:
+    """RL-Zoo's env_wrapper sits above the Monitor: the adapter still provides the key the Monitor logs."""
+    vec_env = _maze_with_success_logged([IsSuccessWrapper, ResetFreeWrapper], training)
+    vec_env.reset()
+    episodes = []
+    for _ in range(40):
+        infos = vec_env.step(np.zeros((1, 2), np.float32))[3]
+        episodes += [info["episode"] for info in infos if "episode" in info]
+    assert episodes and all("is_success" in episode for episode in episodes)
+
+
+@pytest.mark.parametrize("training", [False, True])
+def test_monitor_info_keyword_the_env_lacks_names_the_fix(training: bool) -> None:
+    vec_env = _maze_with_success_logged([ResetFreeWrapper], training)
+    vec_env.reset()
+    with pytest.raises(ValueError, match="IsSuccessWrapper first in env_wrapper"):
+        for _ in range(40):
+            vec_env.step(np.zeros((1, 2), np.float32))
+
+
 def test_eval_horizon_sets_the_inner_time_limit_seen_by_monitor() -> None:
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.evaluation import evaluate_policy

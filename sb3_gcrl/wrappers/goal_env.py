@@ -12,6 +12,8 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from stable_baselines3.common.env_util import unwrap_wrapper
+from stable_baselines3.common.monitor import Monitor
 
 GOAL_KEYS = ("observation", "achieved_goal", "desired_goal")
 
@@ -49,6 +51,11 @@ class IsSuccessWrapper(
     RL-Zoo only read ``info["is_success"]``. When ``source_key`` is missing from ``info`` the success is
     computed from the distance between achieved and desired goal.
 
+    Placed above an SB3 ``Monitor`` (``make_vec_env`` and RL-Zoo put the Monitor directly around the env and the
+    ``env_wrapper`` list above it), the wrapper also adds the key *below* the Monitor, so that a Monitor with
+    ``info_keywords=("is_success",)`` (RL-Zoo's ``monitor_kwargs``) finds it at the end of an episode instead of
+    raising a ``KeyError``.
+
     :param env: goal env.
     :param source_key: info key to copy (``"success"`` for gymnasium-robotics mazes).
     :param success_distance: fallback threshold on ``||achieved_goal - desired_goal||`` when ``source_key`` is
@@ -61,6 +68,10 @@ class IsSuccessWrapper(
         super().__init__(env)
         self.source_key = source_key
         self.success_distance = success_distance
+        monitor = unwrap_wrapper(env, Monitor)
+        if monitor is not None and not isinstance(monitor.env, IsSuccessWrapper):
+            # the Monitor reads info_keywords from the env it wraps: provide the key there too
+            monitor.env = IsSuccessWrapper(monitor.env, source_key, success_distance)
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
         """The env's vectorised reward (gymnasium 1.x wrappers do not forward attributes)."""

@@ -28,6 +28,7 @@ import gymnasium as gym
 from gymnasium.wrappers import TimeLimit
 
 from sb3_gcrl.wrappers.mode import TrainingModeMixin
+from sb3_gcrl.wrappers.segments import missing_info_keyword
 
 #: EARL's default interval between hard resets (tabletop, sawyer door, IBC PointUMaze)
 EARL_HARD_RESET_EVERY = 200_000
@@ -127,7 +128,12 @@ class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstruct
         return obs, info
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
-        obs, reward, terminated, truncated, info = self.env.step(action)
+        try:
+            obs, reward, terminated, truncated, info = self.env.step(action)
+        except KeyError as error:  # SB3's Monitor below, at an episode's end, missing one of its info_keywords
+            if error.args and error.args[0] in self._segments.info_keywords:
+                raise missing_info_keyword(error.args[0]) from error
+            raise
         self.total_steps += 1
         self._steps_since_reset += 1
         self._segment_steps += 1

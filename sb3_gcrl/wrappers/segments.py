@@ -38,6 +38,20 @@ GOAL_KIND_KEY = "goal_kind"
 GOAL_KIND_NAMES = {"forward": "evaluation", "env": "evaluation", "back": "initial", "explore": "exploratory"}
 
 
+def missing_info_keyword(key: str) -> ValueError:
+    """The error for a ``Monitor`` ``info_keywords`` entry that the env's info lacks, naming the fixes.
+
+    :param key: the missing info key.
+    :return: the error to raise.
+    """
+    return ValueError(
+        f"SB3's Monitor logs info[{key!r}] at the end of every episode (its info_keywords: RL-Zoo's monitor_kwargs), "
+        f"but the env's info has no {key!r}. For a goal env that reports success under another key (gymnasium-robotics "
+        "mazes: 'success'), put sb3_gcrl.wrappers.IsSuccessWrapper first in env_wrapper (it adds 'is_success' below "
+        f"the Monitor); otherwise remove {key!r} from monitor_kwargs' info_keywords."
+    )
+
+
 class SegmentRecorder:
     """Return, length and success of the segments a training-mode wrapper shows SB3, reported like ``Monitor``.
 
@@ -48,7 +62,8 @@ class SegmentRecorder:
         self.monitor = monitor
         self.t_start = time.time() if self.monitor is None else self.monitor.t_start
         self._writer: ResultsWriter | None = None
-        self._info_keywords: tuple[str, ...] = () if self.monitor is None else tuple(self.monitor.info_keywords)
+        #: the Monitor's info_keywords (copied into every segment row)
+        self.info_keywords: tuple[str, ...] = () if self.monitor is None else tuple(self.monitor.info_keywords)
         self.begin()
 
     def begin(self) -> None:
@@ -95,7 +110,9 @@ class SegmentRecorder:
             "l": self._length,
             "t": round(time.time() - self.t_start, 6),
         }
-        for key in self._info_keywords:
+        for key in self.info_keywords:
+            if key not in info:
+                raise missing_info_keyword(key)
             episode[key] = info[key]
         if self.monitor is not None:
             episode.update(self.monitor.current_reset_info)
