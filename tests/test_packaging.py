@@ -11,6 +11,24 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def see_installed_dependencies(python: Path) -> None:
+    """Let the venv of ``python`` import what the running interpreter has installed, after its own packages.
+
+    ``venv --system-site-packages`` is not enough: run from inside a virtual or conda env, it exposes the base
+    interpreter's packages, not that env's. A ``.pth`` file listing every site directory on the running interpreter's
+    path works from a venv, a conda env and a bare interpreter alike. Plain path lines do not run the ``.pth`` files
+    of those directories, so an editable install of this tree there stays invisible: sb3_gcrl comes from the wheel.
+    """
+    site_dirs = [entry for entry in sys.path if Path(entry).name in ("site-packages", "dist-packages")]
+    purelib = subprocess.run(
+        [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    (Path(purelib) / "installed_dependencies.pth").write_text("\n".join(site_dirs) + "\n")
+
+
 def test_wheel_installs_into_a_fresh_venv_and_trains_with_its_shipped_config(tmp_path: Path):
     # the wheel, built from a copy of the tree (the build leaves build/ behind) without build isolation
     source = tmp_path / "source"
@@ -25,8 +43,9 @@ def test_wheel_installs_into_a_fresh_venv_and_trains_with_its_shipped_config(tmp
     assert len(wheels) == 1
     # a fresh venv that sees the installed dependencies but gets sb3_gcrl only from the wheel
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True)
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
     python, launcher = venv / "bin" / "python", venv / "bin" / "sb3-gcrl"
+    see_installed_dependencies(python)
     subprocess.run([str(python), "-m", "pip", "install", "--no-deps", "--no-index", str(wheels[0])], check=True)
     work = tmp_path / "elsewhere"  # not the clone: nothing to find by relative path
     work.mkdir()
@@ -38,6 +57,16 @@ def test_wheel_installs_into_a_fresh_venv_and_trains_with_its_shipped_config(tmp
         text=True,
     ).stdout.split()
     assert all(str(venv) in line for line in location), location  # the wheel's copy, not this tree
+    import stable_baselines3
+
+    dependency = subprocess.run(
+        [str(python), "-c", "import stable_baselines3; print(stable_baselines3.__file__)"],
+        cwd=work,
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    assert dependency == stable_baselines3.__file__  # this env's dependencies (a venv's or conda env's own)
     train = subprocess.run(
         [str(launcher), "train", "--algo", "cec", "--env", "GCRL/GrowingTree-v0", "-n", "500", "-f", "logs"],
         cwd=work,
