@@ -18,6 +18,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 #: the zoo configs this package ships (package data; a clone also has them as ``zoo_configs/`` at its root)
 ZOO_CONFIGS_DIR = Path(__file__).resolve().parent / "zoo_configs"
@@ -151,6 +152,13 @@ NUM_THREADS_NOTE = (
 )
 
 
+RESUME_NOTE = (
+    "sb3-gcrl train: Ctrl-C saves a resumable checkpoint (model, replay buffer, wrapper state, generators) and exits "
+    "with 130; --save-freq N also saves one every N steps. `sb3-gcrl train --resume RUN_FOLDER` (the 'Log path' a "
+    "run prints) continues that run in its folder, from its newest checkpoint, with its own arguments"
+)
+
+
 def _with_default_num_threads(argv: list[str]) -> list[str]:
     """``argv`` with ``--num-threads 1`` (:data:`DEFAULT_NUM_THREADS`) added when it sets no thread count."""
     if _option_value(argv, "--num-threads") is not None:
@@ -161,18 +169,42 @@ def _with_default_num_threads(argv: list[str]) -> list[str]:
 def train(argv: list[str]) -> int:
     """``sb3-gcrl train``: RL-Zoo's ``train`` with this package's algorithms and configs available.
 
-    Unlike ``rl_zoo3 train``, torch runs on one thread unless ``--num-threads`` is given (:data:`DEFAULT_NUM_THREADS`).
+    Unlike ``rl_zoo3 train``, torch runs on one thread unless ``--num-threads`` is given (:data:`DEFAULT_NUM_THREADS`),
+    an interruption (Ctrl-C) saves a resumable checkpoint and exits with 130, and ``--resume RUN_FOLDER`` continues
+    a run (:mod:`sb3_gcrl.zoo_train`).
 
-    :param argv: ``rl_zoo3 train`` arguments.
+    :param argv: ``rl_zoo3 train`` arguments, or ``--resume RUN_FOLDER``.
     :return: exit code.
     """
-    from rl_zoo3.train import train as zoo_train
+    import rl_zoo3.train
+
+    from sb3_gcrl.zoo_train import INTERRUPTED_EXIT_CODE, ResumableExperimentManager, resume_arguments
 
     if "-h" in argv or "--help" in argv:
-        print(NUM_THREADS_NOTE + "\n")
+        print(NUM_THREADS_NOTE + "\n" + RESUME_NOTE + "\n")
+    resume_from = None
+    if "--resume" in argv:
+        if len(argv) != 2 or argv[0] != "--resume":
+            raise SystemExit(
+                "sb3-gcrl train --resume RUN_FOLDER takes no other arguments: the run continues with its own"
+            )
+        resume_from = Path(argv[1]).resolve()
+        argv, _ = resume_arguments(resume_from)
     argv = _with_default_num_threads(_with_default_config(argv))
     _check_config(argv)
-    return _run_zoo_script(zoo_train, "sb3-gcrl train", argv)
+    managers: list[ResumableExperimentManager] = []
+
+    def manager(*args: Any, **kwargs: Any) -> ResumableExperimentManager:
+        managers.append(ResumableExperimentManager(*args, resume_from=resume_from, **kwargs))
+        return managers[-1]
+
+    zoo_manager = rl_zoo3.train.ExperimentManager  # type: ignore[attr-defined]
+    rl_zoo3.train.ExperimentManager = manager  # type: ignore[attr-defined,assignment]
+    try:
+        code = _run_zoo_script(rl_zoo3.train.train, "sb3-gcrl train", argv)
+    finally:
+        rl_zoo3.train.ExperimentManager = zoo_manager  # type: ignore[attr-defined]
+    return INTERRUPTED_EXIT_CODE if any(m.interrupted for m in managers) else code
 
 
 def _override_keys(argv: Sequence[str]) -> list[str]:

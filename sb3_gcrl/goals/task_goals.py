@@ -18,7 +18,7 @@ Goals of any shape are handled flat: a sample is a row of ``goal_dim = prod(achi
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -64,6 +64,17 @@ class TaskRelevantGoals:
         self._initial = np.zeros((min(capacity, 16), goal_dim), dtype=np.float64)
         self._evaluation = np.zeros_like(self._initial)
         self._n_recorded = 0
+
+    def attach(self, env: gym.Env) -> None:
+        """Sample declared goals from ``env`` (after unpickling, which leaves the env out).
+
+        :param env: the goal env, wrapped or not.
+        """
+        self._unwrapped = env.unwrapped
+
+    def __getstate__(self) -> dict[str, Any]:
+        # the env is not pickled with the goals (run checkpoints): attach() reconnects it
+        return {**self.__dict__, "_unwrapped": None}
 
     @property
     def n_recorded(self) -> int:

@@ -279,8 +279,13 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
         """Pickle the sequence replay buffer, atomically (a trusted file only can be loaded back)."""
         atomic_save_to_pkl(path, self.replay_buffer, self.verbose)
 
-    def load_replay_buffer(self, path: str) -> None:
-        """Load a buffer saved by :meth:`save_replay_buffer` (pickle: load trusted files only)."""
+    def load_replay_buffer(self, path: str, truncate_last_traj: bool = True) -> None:
+        """Load a buffer saved by :meth:`save_replay_buffer` (pickle: load trusted files only).
+
+        :param path: the pickled buffer.
+        :param truncate_last_traj: SB3's signature (RL-Zoo passes it); nothing to truncate here: the next ``learn``
+            starts a new stream (``is_first``), so the trajectory cut off by the save is never continued.
+        """
         from stable_baselines3.common.save_util import load_from_pkl
 
         buffer = load_from_pkl(path, self.verbose)

@@ -63,6 +63,13 @@ class PostExplorationWrapper(GoalCommandWrapper):
 
     switching_callback = "sb3_gcrl.post_exploration.PostExplorationCallback"
 
+    run_state_attributes = (
+        *GoalCommandWrapper.run_state_attributes,
+        "post_exploration_steps",
+        "episodes",
+        "goals_reached",
+    )
+
     def __init__(
         self,
         env: gym.Env,

@@ -57,6 +57,7 @@ class GoExploreWrapper(GoalCommandWrapper):
 
     #: random exploration actions drawn per block
     RANDOM_BLOCK = 1024
+    run_state_attributes = (*GoalCommandWrapper.run_state_attributes, "phase_steps_total")
 
     def __init__(
         self,

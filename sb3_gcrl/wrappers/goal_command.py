@@ -62,6 +62,8 @@ class GoalCommandWrapper(
     :param task_goal_capacity: resets remembered when rho_0/rho_g* are learned from the env's resets.
     """
 
+    run_state_attributes = ("task_goals", "scheduler", "goal_counts", "goal_reached", "_rng", "_task_goal_rng")
+
     def __init__(
         self,
         env: gym.Env,
@@ -118,6 +120,10 @@ class GoalCommandWrapper(
         """Pass the switch on to a mode-switched wrapper below (a :class:`ResetFreeWrapper`)."""
         if self._mode_below is not None:
             self._mode_below.set_training_mode(training)
+
+    def _on_run_state_loaded(self) -> None:
+        """The restored task goals sample from this env's declared samplers (the env is not saved with them)."""
+        self.task_goals.attach(self.env)
 
     @property
     def task_goal_alpha(self) -> float | None:

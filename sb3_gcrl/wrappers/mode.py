@@ -20,6 +20,7 @@ In training mode the outermost mode-switched wrapper of a chain reports the segm
 
 from __future__ import annotations
 
+import pickle
 import sys
 import warnings
 from typing import Any
@@ -62,6 +63,10 @@ class TrainingModeMixin:
     switching_callback = "sb3_gcrl.callbacks.ResetFreeCallback"
     #: True in training mode, False in evaluation (episodic) mode
     training: bool
+    #: attributes holding what training has accumulated (learned task goals, visit counts, counters, generators):
+    #: saved with a run's checkpoint (:meth:`run_state`) and restored when the run resumes. The simulator's physical
+    #: state is not among them: a resumed run starts with a physical reset.
+    run_state_attributes: tuple[str, ...] = ()
 
     def _init_training_mode(self, warns: bool = True) -> None:
         """Start in evaluation mode.
@@ -105,6 +110,53 @@ class TrainingModeMixin:
 
     def _on_training_mode(self, training: bool) -> None:  # noqa: B027 (optional hook)
         """Apply a mode switch (no-op by default)."""
+
+    # --- run state (checkpoints, resume) --------------------------------------------------------------------------
+    def _mode_chain(self) -> list[TrainingModeMixin]:
+        """This wrapper and the mode-switched wrappers below it, outermost first."""
+        chain: list[TrainingModeMixin] = []
+        inner: Any = self
+        while isinstance(inner, gym.Wrapper):
+            if isinstance(inner, TrainingModeMixin):
+                chain.append(inner)
+            inner = inner.env
+        return chain
+
+    def run_state(self) -> bytes:
+        """What this wrapper and the mode-switched wrappers below it accumulated in training, pickled together (so
+        objects they share stay shared): each wrapper's :attr:`run_state_attributes`.
+
+        :return: the pickled state, for :meth:`load_run_state` on a wrapper chain built the same way.
+        """
+        return pickle.dumps(
+            [
+                (type(wrapper).__name__, {name: getattr(wrapper, name) for name in wrapper.run_state_attributes})
+                for wrapper in self._mode_chain()
+            ]
+        )
+
+    def load_run_state(self, state: bytes) -> None:
+        """Restore what :meth:`run_state` saved (pickle: load trusted files only).
+
+        :param state: the pickled state.
+        :raises ValueError: the state was saved from a different chain of wrappers.
+        """
+        saved = pickle.loads(state)
+        chain = self._mode_chain()
+        saved_names = [name for name, _ in saved]
+        names = [type(wrapper).__name__ for wrapper in chain]
+        if saved_names != names:
+            raise ValueError(
+                f"the saved run state is of the wrappers {saved_names}, but this env has {names}: resume with the "
+                "env_wrapper of the run that saved it"
+            )
+        for wrapper, (_, attributes) in zip(chain, saved):
+            for name, value in attributes.items():
+                setattr(wrapper, name, value)
+            wrapper._on_run_state_loaded()
+
+    def _on_run_state_loaded(self) -> None:  # noqa: B027 (optional hook)
+        """Reconnect what the saved state could not hold (references to the env); no-op by default."""
 
     def _arm_mode_check(self) -> None:
         """Check the next step (called at physical resets while the mode was never chosen)."""

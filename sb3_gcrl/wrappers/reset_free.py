@@ -46,6 +46,8 @@ class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstruct
         the inner env's own time limit.
     """
 
+    run_state_attributes = ("interventions", "terminal_interventions", "total_steps")
+
     def __init__(
         self,
         env: gym.Env,

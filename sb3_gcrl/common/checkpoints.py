@@ -1,0 +1,169 @@
+"""Resumable checkpoints of a training run: everything that shapes what the run does next, saved as one set.
+
+A checkpoint is a folder ``<run>/checkpoints/<N>_steps/`` holding
+
+* ``model.zip``: the model (SB3's ``save``; the step counter, and for episodic control the memory, are in it);
+* ``replay_buffer.pkl``: the replay buffer, for algorithms that have one;
+* ``<env name>/vecnormalize.pkl``: ``VecNormalize``'s statistics, when the env is normalised;
+* ``env_state.pkl``: what the mode-switched wrappers of every training env accumulated (learned task goals, visit
+  counts of the goal schedulers, counters, their generators: :meth:`~sb3_gcrl.wrappers.mode.TrainingModeMixin.
+  run_state`);
+* ``rng_state.pkl``: the global generators of Python, numpy and torch;
+* ``checkpoint.json``: the step count, written last.
+
+The layout is RL-Zoo's for ``-i``: a model file with ``replay_buffer.pkl`` and ``<env name>/vecnormalize.pkl``
+beside it. The set is written into a temporary folder that is renamed when complete, and ``<run>/checkpoints/latest``
+names the newest complete set (replaced atomically), so a process killed while saving leaves the previous checkpoint
+intact. Older checkpoints are deleted once a newer one is complete.
+
+What is not saved: the simulator's physical state (a resumed run starts with a physical reset, as after a hard
+reset) and the steps taken after the checkpoint (a killed run loses them; an interrupted ``sb3-gcrl train`` saves
+a checkpoint at the interruption).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import random
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_gcrl.common.saving import atomic_write_text
+
+#: folder of a run's checkpoints
+CHECKPOINTS_DIR = "checkpoints"
+#: file in :data:`CHECKPOINTS_DIR` naming the newest complete checkpoint
+LATEST_FILE = "latest"
+#: the model file of a checkpoint
+MODEL_FILE = "model.zip"
+#: the replay buffer file of a checkpoint (RL-Zoo's name: ``-i <checkpoint>/model.zip`` loads it)
+REPLAY_BUFFER_FILE = "replay_buffer.pkl"
+ENV_STATE_FILE = "env_state.pkl"
+RNG_STATE_FILE = "rng_state.pkl"
+#: written last: its presence marks a complete checkpoint
+MANIFEST_FILE = "checkpoint.json"
+
+
+class CheckpointError(ValueError):
+    """A run folder without a usable checkpoint."""
+
+
+def save_checkpoint(model: BaseAlgorithm, run_dir: str | Path, env_name: str) -> Path:
+    """Save a resumable checkpoint of ``model``'s run (see the module's docstring for what it holds).
+
+    :param model: the algorithm being trained (its ``env`` is the training env).
+    :param run_dir: the run's folder.
+    :param env_name: the env's name as RL-Zoo writes it in folder names (``GCRL-PointUMazeGoal-v0``).
+    :return: the checkpoint's folder.
+    """
+    root = Path(run_dir) / CHECKPOINTS_DIR
+    name = f"{model.num_timesteps}_steps"
+    partial = root / f".{name}.partial-{os.getpid()}"
+    shutil.rmtree(partial, ignore_errors=True)
+    partial.mkdir(parents=True)
+    model.save(partial / MODEL_FILE)
+    if getattr(model, "replay_buffer", None) is not None:
+        model.save_replay_buffer(partial / REPLAY_BUFFER_FILE)  # type: ignore[attr-defined]
+    vec_normalize = model.get_vec_normalize_env()
+    if vec_normalize is not None:
+        (partial / env_name).mkdir()
+        vec_normalize.save(str(partial / env_name / "vecnormalize.pkl"))
+    env = model.get_env()
+    env_states = env.env_method("run_state") if env is not None and env.has_attr("run_state") else None
+    (partial / ENV_STATE_FILE).write_bytes(pickle.dumps(env_states))
+    rng = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": th.get_rng_state()}
+    (partial / RNG_STATE_FILE).write_bytes(pickle.dumps(rng))
+    (partial / MANIFEST_FILE).write_text(json.dumps({"num_timesteps": int(model.num_timesteps)}))
+    target = root / name
+    shutil.rmtree(target, ignore_errors=True)  # a checkpoint of the same step (an interruption right after a save)
+    partial.rename(target)
+    atomic_write_text(root / LATEST_FILE, name + "\n")
+    for old in root.iterdir():  # older checkpoints, and partial ones of killed processes
+        if old.is_dir() and old != target:
+            shutil.rmtree(old, ignore_errors=True)
+    return target
+
+
+def latest_checkpoint(run_dir: str | Path) -> Path:
+    """The newest complete checkpoint of a run.
+
+    :param run_dir: the run's folder (``logs/<algo>/<env>_<id>``).
+    :return: the checkpoint's folder.
+    :raises CheckpointError: the folder has no complete checkpoint.
+    """
+    root = Path(run_dir) / CHECKPOINTS_DIR
+    latest = root / LATEST_FILE
+    if not latest.is_file():
+        raise CheckpointError(
+            f"{run_dir} has no checkpoint ({latest} is missing): a run saves one when interrupted (Ctrl-C) and every "
+            "--save-freq steps; a run killed before either cannot be resumed"
+        )
+    checkpoint = root / latest.read_text().strip()
+    if not (checkpoint / MANIFEST_FILE).is_file():
+        raise CheckpointError(f"{latest} names {checkpoint}, which is not a complete checkpoint")
+    return checkpoint
+
+
+def checkpoint_steps(checkpoint: str | Path) -> int:
+    """The env steps a checkpoint was taken at."""
+    return int(json.loads((Path(checkpoint) / MANIFEST_FILE).read_text())["num_timesteps"])
+
+
+def restore_checkpoint(model: BaseAlgorithm, checkpoint: str | Path) -> None:
+    """Restore what the model file does not hold: the training envs' wrapper state and the global generators.
+
+    Load the model (with the replay buffer and ``VecNormalize``) first, e.g. through RL-Zoo's ``-i``.
+
+    :param model: the loaded model, with its training env.
+    :param checkpoint: the checkpoint's folder.
+    :raises CheckpointError: the checkpoint's env state does not fit the model's env.
+    """
+    checkpoint = Path(checkpoint)
+    env_states: list[bytes] | None = pickle.loads((checkpoint / ENV_STATE_FILE).read_bytes())
+    env = model.get_env()
+    has_state = env is not None and env.has_attr("run_state")
+    if env_states is not None:
+        if not has_state or len(env_states) != env.num_envs:  # type: ignore[union-attr]
+            raise CheckpointError(
+                f"{checkpoint} holds the wrapper state of {len(env_states)} env(s), which the resumed run's env "
+                "cannot take: resume with the run's own env_wrapper and n_envs"
+            )
+        for i, state in enumerate(env_states):
+            env.env_method("load_run_state", state, indices=i)  # type: ignore[union-attr]
+    rng: dict[str, Any] = pickle.loads((checkpoint / RNG_STATE_FILE).read_bytes())
+    random.setstate(rng["python"])
+    np.random.set_state(rng["numpy"])
+    th.set_rng_state(rng["torch"])
+
+
+class RunCheckpointCallback(BaseCallback):
+    """Save a resumable checkpoint (:func:`save_checkpoint`) every ``save_freq`` calls, keeping the newest only.
+
+    :param save_freq: calls (vectorised env steps) between checkpoints.
+    :param run_dir: the run's folder.
+    :param env_name: the env's name as RL-Zoo writes it in folder names.
+    :param verbose: 1 prints each checkpoint's folder.
+    """
+
+    def __init__(self, save_freq: int, run_dir: str | Path, env_name: str, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        if save_freq < 1:
+            raise ValueError(f"save_freq must be >= 1, got {save_freq}")
+        self.save_freq = int(save_freq)
+        self.run_dir = Path(run_dir)
+        self.env_name = env_name
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.save_freq == 0:
+            path = save_checkpoint(self.model, self.run_dir, self.env_name)
+            if self.verbose:
+                print(f"Saved a resumable checkpoint to {path}")
+        return True

@@ -1,0 +1,183 @@
+"""Interrupted runs lose nothing that was saved: ``sb3-gcrl train`` checkpoints, exits 130 on Ctrl-C, resumes."""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from stable_baselines3.common.monitor import load_results
+
+from sb3_gcrl.common.checkpoints import (
+    CheckpointError,
+    checkpoint_steps,
+    latest_checkpoint,
+    restore_checkpoint,
+    save_checkpoint,
+)
+from sb3_gcrl.zoo_train import INTERRUPTED_EXIT_CODE
+
+ENV = "GCRL/PointUMazeGoal-v0"
+ENV_NAME = "GCRL-PointUMazeGoal-v0"
+#: the reset-free SAC port (Back-and-Forth Go-Explore wrappers, task-relevant HER): a tiny, cheap version of it
+TRAIN = [
+    "train", "--algo", "sac", "--env", ENV, "-conf", "reset_free_pointumaze_morefree_cpu", "-n", "3000",
+    "--save-freq", "1000", "--eval-freq", "1000", "--eval-episodes", "1", "-f", "logs", "--seed", "1",
+    "-params", "learning_starts:2500", "batch_size:8", "policy_kwargs:dict(net_arch=[8])", "gradient_steps:1",
+]  # fmt: skip
+
+
+def _start(cwd: Path, arguments: list[str]) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "sb3_gcrl", *arguments],
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, "PYTHONWARNINGS": "ignore"},
+    )
+
+
+def _stop_after_first_checkpoint(process: subprocess.Popen[str], run_dir: Path, sig: signal.Signals) -> str:
+    latest = run_dir / "checkpoints" / "latest"
+    deadline = time.monotonic() + 300
+    while not latest.is_file() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert process.poll() is None, "the run ended before its first checkpoint"
+    process.send_signal(sig)
+    output, _ = process.communicate(timeout=300)
+    return output
+
+
+def _wrapper_state(checkpoint: Path) -> dict:
+    (state,) = pickle.loads((checkpoint / "env_state.pkl").read_bytes())
+    return {name: attributes for name, attributes in pickle.loads(state)}
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["sigint", "sigkill"])
+def test_interrupted_run_resumes_with_everything_saved(tmp_path: Path, sig: signal.Signals) -> None:
+    run_dir = tmp_path / "logs" / "sac" / f"{ENV_NAME}_1"
+    output = _stop_after_first_checkpoint(_start(tmp_path, TRAIN), run_dir, sig)
+    if sig == signal.SIGINT:
+        # RL-Zoo's own final save, then the shell's exit code for Ctrl-C, and a checkpoint at the interruption
+        assert "Interrupted at step" in output and "sb3-gcrl train --resume" in output, output[-3000:]
+        assert (run_dir / f"{ENV_NAME}.zip").is_file()
+    checkpoint = latest_checkpoint(run_dir)
+    steps = checkpoint_steps(checkpoint)
+    assert 1000 <= steps < 3000
+    saved_state = _wrapper_state(checkpoint)["GoExploreWrapper"]
+    assert sum(saved_state["goal_counts"].values()) > 0
+    with np.load(run_dir / "evaluations.npz") as data:
+        evaluations_before = data["timesteps"][data["timesteps"] <= steps].tolist()
+    monitor_rows_before = len(load_results(str(run_dir)))
+
+    resumed = _start(tmp_path, ["train", "--resume", str(run_dir)])
+    output = resumed.communicate(timeout=600)[0]
+    assert resumed.returncode == 0, output[-3000:]
+    assert "Resuming the run" in output
+    assert [path.name for path in (tmp_path / "logs" / "sac").iterdir()] == [run_dir.name]  # the same run folder
+    final = latest_checkpoint(run_dir)
+    assert checkpoint_steps(final) == 3000  # the counter continued to the run's own budget
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    assert load_from_zip_file(run_dir / f"{ENV_NAME}.zip")[0]["num_timesteps"] == 3000
+    with np.load(run_dir / "evaluations.npz") as data:
+        timesteps = data["timesteps"].tolist()
+    assert timesteps[: len(evaluations_before)] == evaluations_before  # kept, not overwritten
+    assert timesteps == sorted(set(timesteps)) and timesteps[-1] == 3000  # every evaluation once, on its rhythm
+    monitor = load_results(str(run_dir))
+    assert len(monitor) > monitor_rows_before  # the monitor CSV was extended
+    assert monitor["l"].sum() <= 3000  # rows of steps taken again after a kill are not there twice
+    final_state = _wrapper_state(final)["GoExploreWrapper"]
+    for kind, count in saved_state["goal_counts"].items():  # the wrappers went on from their saved counts
+        assert final_state["goal_counts"][kind] >= count
+    assert sum(final_state["goal_counts"].values()) > sum(saved_state["goal_counts"].values())
+    assert not [path for path in (run_dir / "checkpoints").iterdir() if path.name.startswith(".")]
+
+
+def test_checkpoint_round_trip_restores_wrapper_state_and_generators(tmp_path: Path) -> None:
+    import gymnasium as gym
+    import torch as th
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.env_util import make_vec_env
+
+    import sb3_gcrl  # noqa: F401
+    from sb3_gcrl.wrappers import GoExploreWrapper, ResetFreeWrapper
+
+    def wrap(env: gym.Env) -> gym.Env:
+        env = ResetFreeWrapper(env, eval_horizon=100)
+        return GoExploreWrapper(env, scheduler="back_and_forth", scheduler_kwargs={"alpha": 0.2})
+
+    def model() -> SAC:
+        env = make_vec_env(ENV, n_envs=1, seed=0, wrapper_class=wrap)
+        env.env_method("set_training_mode", True)
+        return SAC("MultiInputPolicy", env, learning_starts=1000, policy_kwargs={"net_arch": [8]}, seed=0)
+
+    trained = model()
+    trained.learn(300)
+    checkpoint = save_checkpoint(trained, tmp_path, ENV_NAME)
+    expected_draw = (np.random.rand(), th.rand(1).item())
+    state = trained.get_env().env_method("run_state")[0]
+    scheduler = trained.get_env().get_attr("scheduler")[0]
+
+    fresh = SAC.load(checkpoint / "model.zip", env=model().get_env())
+    fresh.load_replay_buffer(checkpoint / "replay_buffer.pkl")
+    restore_checkpoint(fresh, checkpoint)
+    assert (np.random.rand(), th.rand(1).item()) == expected_draw
+    assert fresh.num_timesteps == 300 and fresh.replay_buffer.size() == trained.replay_buffer.size()
+    restored = fresh.get_env().get_attr("scheduler")[0]
+    assert restored is not scheduler
+    assert np.array_equal(restored.exploratory.goal_space._counts, scheduler.exploratory.goal_space._counts)
+    assert restored.task_goals is fresh.get_env().get_attr("task_goals")[0]  # shared objects stay shared
+    assert fresh.get_env().env_method("run_state")[0] == state
+    # declared task goals sample from the new env again
+    assert fresh.get_env().env_method("sample_task_goals", "evaluation", 2)[0].shape == (2, 2)
+
+
+def test_a_chain_of_other_wrappers_refuses_the_saved_state() -> None:
+    import gymnasium as gym
+
+    import sb3_gcrl  # noqa: F401
+    from sb3_gcrl.wrappers import GoExploreWrapper, ResetFreeWrapper
+
+    saved = GoExploreWrapper(ResetFreeWrapper(gym.make(ENV), eval_horizon=100)).run_state()
+    with pytest.raises(ValueError, match="resume with the env_wrapper of the run"):
+        ResetFreeWrapper(gym.make(ENV), eval_horizon=100).load_run_state(saved)
+
+
+def test_resume_of_a_folder_without_checkpoint_names_what_is_missing(tmp_path: Path) -> None:
+    with pytest.raises(CheckpointError, match="no checkpoint"):
+        latest_checkpoint(tmp_path)
+    from sb3_gcrl.cli import main
+
+    with pytest.raises(SystemExit, match="not a run folder of sb3-gcrl train"):
+        main(["train", "--resume", str(tmp_path)])
+    (tmp_path / ENV_NAME).mkdir()
+    (tmp_path / ENV_NAME / "sb3_gcrl_train_args.json").write_text(json.dumps(["--algo", "sac"]))
+    with pytest.raises(SystemExit, match="Ctrl-C"):
+        main(["train", "--resume", str(tmp_path)])
+    with pytest.raises(SystemExit, match="takes no other arguments"):
+        main(["train", "--resume", str(tmp_path), "-n", "10"])
+
+
+def test_exit_code_of_an_interruption_is_the_shells() -> None:
+    assert INTERRUPTED_EXIT_CODE == 128 + signal.SIGINT
+
+
+def test_monitor_rows_after_the_checkpoint_are_dropped(tmp_path: Path) -> None:
+    from sb3_gcrl.zoo_train import truncate_monitor_file
+
+    path = tmp_path / "0.monitor.csv"
+    header = '#{"t_start": 0.0, "env_id": "E"}\nr,l,t,is_success\n'
+    path.write_text(header + "0.0,300,1.0,False\n1.0,300,2.0,True\n0.0,300,3.0,False\n")
+    truncate_monitor_file(path, 700)  # episodes ending at 300 and 600 steps stay; the one ending at 900 goes
+    assert path.read_text() == header + "0.0,300,1.0,False\n1.0,300,2.0,True\n"
+    truncate_monitor_file(path, 600)
+    assert path.read_text().count("\n") == 4
