@@ -555,3 +555,19 @@ def test_rgb_array_rendering_so_sb3_accepts_the_env_id(env_id: str) -> None:
     assert not np.array_equal(frame, env.render()) or env_id == "GCRL/WindyGrid-v0"
     with pytest.raises(ValueError, match="render_mode must be None, 'ansi' or 'rgb_array'"):
         gym.make(env_id, render_mode="sketch")
+
+
+def test_minatar_ids_without_minatar_installed_name_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
+    import importlib.util
+
+    from sb3_gcrl import envs
+
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "minatar" else real_find_spec(name, *a)
+    )
+    for env_id in [env_id for env_id in gym.registry if env_id.startswith("MinAtar/")]:
+        monkeypatch.delitem(gym.registry, env_id)
+    envs._register_minatar()
+    with pytest.raises(ModuleNotFoundError, match=r"pip install 'sb3-gcrl\[minatar\]'"):
+        gym.make(MINATAR_ENV_IDS[0])

@@ -7,6 +7,9 @@ module documents its task's thesis source, spaces, reward, horizon and departure
 
 from __future__ import annotations
 
+import importlib.util
+from typing import Any
+
 import gymnasium as gym
 
 from sb3_gcrl.envs import robotics  # noqa: F401  (first: imports gymnasium-robotics quietly)
@@ -92,16 +95,33 @@ MINATAR_ENV_IDS: tuple[str, ...] = tuple(
 _MINATAR_GAMES: tuple[str, ...] = ("asterix", "breakout", "freeway", "seaquest", "space_invaders")
 
 
+#: what installs MinAtar (an optional extra: only the 2M chapter uses its games)
+MINATAR_EXTRA = "pip install 'sb3-gcrl[minatar]'"
+
+
+def minatar_missing(**kwargs: Any) -> gym.Env:
+    """Entry point of the MinAtar ids when MinAtar is not installed: an error naming the extra that installs it.
+
+    :param kwargs: the id's arguments (unused).
+    :raises ModuleNotFoundError: always.
+    """
+    raise ModuleNotFoundError(
+        f"The MinAtar games (thesis Ch. 5) need the MinAtar package, an optional extra of sb3-gcrl: {MINATAR_EXTRA}"
+    )
+
+
 def _register_minatar() -> None:
     """Register MinAtar's ids as ``minatar.gym.register_envs`` does (v0: full action set, v1: minimal), by entry
-    point: importing MinAtar loads matplotlib and seaborn for its renderer (seconds), so it waits for ``gym.make``."""
+    point: importing MinAtar loads matplotlib and seaborn for its renderer (seconds), so it waits for ``gym.make``.
+    Without MinAtar installed the ids still exist and say how to install it (:func:`minatar_missing`)."""
+    entry_point = "minatar.gym:BaseEnv" if importlib.util.find_spec("minatar") else f"{__name__}:minatar_missing"
     for game in _MINATAR_GAMES:
         name = game.title().replace("_", "")
         for version, minimal in (("v0", False), ("v1", True)):
             env_id = f"MinAtar/{name}-{version}"
             if env_id not in gym.registry:
                 kwargs = {"game": game, "use_minimal_action_set": minimal}
-                gym.register(env_id, entry_point="minatar.gym:BaseEnv", kwargs=kwargs)
+                gym.register(env_id, entry_point=entry_point, kwargs=kwargs)
 
 
 def _register_third_party() -> None:
