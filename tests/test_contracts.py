@@ -720,6 +720,17 @@ def test_progress_bar_logger_and_tensorboard_run_name(name: str, tmp_path: Path)
     assert len(lines) >= 2 and "time/total_timesteps" in lines[0]
 
 
+@algo_names
+def test_dump_logs_is_sb3s_public_hook(name: str, tmp_path: Path):
+    """``model.dump_logs()`` writes the log (SB3's ``BaseAlgorithm.dump_logs`` only raises NotImplementedError)."""
+    model = CASES[name].make()
+    model.learn(N_STEPS)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.dump_logs()
+    lines = (tmp_path / "progress.csv").read_text().splitlines()
+    assert len(lines) == 2 and "time/total_timesteps" in lines[0]
+
+
 @pytest.mark.parametrize(
     "name",
     sorted(

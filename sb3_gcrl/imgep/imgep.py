@@ -408,7 +408,7 @@ class TabularIMGEP(ModelFileMixin, BaseAlgorithm):
                 break
             self._update_current_progress_remaining(self.num_timesteps, total_timesteps)
             if log_interval and self._n_episodes % log_interval == 0:
-                self._dump_logs()
+                self.dump_logs()
         callback.on_training_end()
         return self
 
@@ -423,7 +423,8 @@ class TabularIMGEP(ModelFileMixin, BaseAlgorithm):
         mask[self.goal_env.reachable_goals] = True
         return coverage(self.goal_space.counts, mask)
 
-    def _dump_logs(self) -> None:
+    def dump_logs(self) -> None:
+        """Write the IMGEP's log data (SB3's public hook): episodes, success, goal space, post-exploration."""
         self.logger.record("time/episodes", self._n_episodes, exclude="tensorboard")
         self.logger.record("rollout/ep_len_mean", safe_mean([ep["l"] for ep in self.ep_info_buffer]))
         self.logger.record("rollout/success_rate", safe_mean(list(self.ep_success_buffer)))

@@ -17,19 +17,9 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from stable_baselines3.common.env_util import unwrap_wrapper
 
 from sb3_gcrl.envs.minigrid_tabular import N_DIRECTIONS, TabularMiniGridObservation
-
-
-def find_wrapper(env: gym.Env, wrapper_type: type) -> gym.Env | None:
-    """The outermost wrapper of type ``wrapper_type`` in ``env``'s chain, or None."""
-    inner: gym.Env = env
-    while True:
-        if isinstance(inner, wrapper_type):
-            return inner
-        if not isinstance(inner, gym.Wrapper):
-            return None
-        inner = inner.env
 
 
 def minigrid_reachable_cells(env: gym.Env) -> np.ndarray:
@@ -125,7 +115,7 @@ class TabularGoalEnv(gym.Wrapper, gym.utils.RecordConstructorArgs):
         )
         gym.Wrapper.__init__(self, env)
         n_states = int(env.observation_space.n)
-        minigrid = find_wrapper(env, TabularMiniGridObservation)
+        minigrid = unwrap_wrapper(env, TabularMiniGridObservation)
         if goal_of_state is None:
             if minigrid is not None:
                 goal_of_state = np.arange(n_states, dtype=np.int64) // N_DIRECTIONS
