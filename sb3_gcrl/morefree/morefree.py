@@ -532,7 +532,7 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
                 if done:
                     self._episode_num += 1
                     if log_interval is not None and self._episode_num % log_interval == 0:
-                        self._dump_logs()
+                        self.dump_logs()
         callback.on_rollout_end()
         return True
 
@@ -791,7 +791,8 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
             log("train/imagination_alpha", self._alpha)
 
     # --- learn ----------------------------------------------------------------------------------------------------
-    def _dump_logs(self) -> None:
+    def dump_logs(self) -> None:
+        """Write the log data (SB3's public hook): episodes, returns, success, speed, the counters of the goal hooks."""
         time_elapsed = max((time.time_ns() - self.start_time) / 1e9, sys.float_info.epsilon)
         fps = int((self.num_timesteps - self._num_timesteps_at_start) / time_elapsed)
         self.logger.record("time/episodes", self._episode_num, exclude="tensorboard")
@@ -839,6 +840,6 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
         finally:
             self._detach()
             th.set_num_threads(threads)
-        self._dump_logs()
+        self.dump_logs()
         callback.on_training_end()
         return self
