@@ -2,13 +2,15 @@
 
 Every fenced ``python`` block is run as a script and every command of a ``bash`` block through ``bash``, in the
 order of the file, in a scratch folder holding links to this clone's ``zoo_configs/``, ``scripts/``, ``docs/`` and
-``README.md`` (so relative paths resolve as in a clone and the outputs land outside it). ``pip install`` lines are
-skipped (the package is installed already). Only the budgets are cut: budgets stated in an example
-(``-n``, ``--steps``, ``--budget``, ``n_timesteps=``; evaluations then every half budget) are set to ``--steps``
-env steps, and a ``sitecustomize`` put on ``PYTHONPATH`` of every process (compare's workers included) caps what
-each ``learn`` call trains at ``--steps``, through SB3's ``_setup_learn``, which every algorithm of SB3 and of this
-package calls; the rest runs as written (construction, wrappers, configs, evaluation, saving, plots). No display:
-``MPLBACKEND=Agg`` and no ``DISPLAY``.
+``README.md`` (so relative paths resolve as in a clone and the outputs land outside it). ``pip install`` set-up is
+skipped (the package is installed already), and so is the test command (CI runs it).
+
+Only the budgets are cut: budgets stated in a training command or script (``-n``, ``--steps``, ``--budget``,
+``n_timesteps=``; evaluations and checkpoints then every half budget) are set to ``--steps`` env steps, and a
+``sitecustomize`` put on ``PYTHONPATH`` of every process (compare's workers included) caps what each ``learn`` call
+trains at ``--steps``, through SB3's ``_setup_learn``, which every algorithm of SB3 and of this package calls; the
+rest runs as written (construction, wrappers, configs, evaluation, saving, plots). No display: ``MPLBACKEND=Agg``
+and no ``DISPLAY``.
 
 Example::
 
@@ -82,6 +84,7 @@ def commands(text: str) -> list[str]:
         # "pip install ... && command": keep what follows the set-up
         parts = [part.strip() for part in line.split("&&") if not part.strip().startswith("pip install")]
         parts = [part for part in parts if not part.startswith(("python -m venv", ". .venv", "source "))]
+        parts = [part for part in parts if "pytest" not in part]  # the test suite: CI runs it
         if parts:
             out.append(" && ".join(parts))
     return out
@@ -89,6 +92,8 @@ def commands(text: str) -> list[str]:
 
 BUDGET_FLAG = re.compile(r"(?<=\s)(-n|--n-timesteps|--steps|--budget)\s+[\d_.e]+")
 EVAL_FLAG = re.compile(r"(?<=\s)--eval-freq\s+[\d_.e]+")
+#: commands whose budget flags are rewritten (``-n`` means something else to other tools, e.g. pytest's workers)
+TRAINING_COMMANDS = ("sb3-gcrl ", "rl_zoo3 ", "python scripts/")
 SAVE_FLAG = re.compile(r"(?<=\s)--save-freq\s+[\d_.e]+")
 
 
@@ -99,6 +104,8 @@ def shrink_budgets(example: str, language: str, steps: int) -> str:
     if language == "python":
         example = re.sub(r"\bn_timesteps=[\d_.e]+", f"n_timesteps={steps}", example)
         return re.sub(r"\beval_freq=[\d_.e]+", f"eval_freq={every}", example)
+    if not example.startswith(TRAINING_COMMANDS):
+        return example
     stated = BUDGET_FLAG.search(example) is not None
     example = BUDGET_FLAG.sub(lambda m: f"{m.group(1)} {steps}", example)
     example = SAVE_FLAG.sub(f"--save-freq {every}", EVAL_FLAG.sub(f"--eval-freq {every}", example))
