@@ -3,9 +3,10 @@
 RL-Zoo's ``train`` saves the model when interrupted (Ctrl-C) and exits 0; its ``-i`` starts a new run from a saved
 model, with the step counter at 0. :class:`ResumableExperimentManager` keeps everything else of RL-Zoo and adds:
 
-* an interrupted run saves a resumable checkpoint (:mod:`sb3_gcrl.common.checkpoints`: model, replay buffer,
-  ``VecNormalize``, the wrappers' accumulated state, the global generators) before its env closes, and
-  ``sb3-gcrl train`` exits with 130 (the shell's code for Ctrl-C) after RL-Zoo's own final save;
+* Ctrl-C stops training after the current step (its evaluation and checkpoint done; a second Ctrl-C stops at
+  once), saves a resumable checkpoint (:mod:`sb3_gcrl.common.checkpoints`: model, replay buffer, ``VecNormalize``,
+  the wrappers' accumulated state, the global generators) before the env closes, and ``sb3-gcrl train`` exits with
+  130 (the shell's code for Ctrl-C) after RL-Zoo's own final save;
 * ``--save-freq N`` also writes such a checkpoint every N steps (besides RL-Zoo's ``rl_model_<N>_steps.zip``), so a
   killed run loses at most N steps;
 * ``sb3-gcrl train --resume <run folder>`` continues the same run, in the same folder, from its newest checkpoint:
@@ -28,7 +29,7 @@ from typing import Any
 import numpy as np
 from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_gcrl.common.checkpoints import (
@@ -129,20 +130,68 @@ class ResumableExperimentManager(ExperimentManager):
                 print(f"The run in {self.save_path} has its {self.n_timesteps} steps already: nothing to resume")
                 return
             kwargs["reset_num_timesteps"] = False
+        stopper = StopOnInterrupt()
+        kwargs["callback"] = [*self.callbacks, stopper]  # last: the step's evaluation and checkpoint come first
         try:
-            model.learn(n_timesteps, **kwargs)
-        except KeyboardInterrupt:
-            self.interrupted = True
-            print(f"Interrupted at step {model.num_timesteps}: saving a resumable checkpoint (Ctrl-C waits for it)")
-            with sigint_ignored():  # a second Ctrl-C would leave the previous checkpoint only
-                path = save_checkpoint(model, self.save_path, str(self.env_name))
-            print(f"Resumable checkpoint in {path}: continue with sb3-gcrl train --resume {self.save_path}")
+            try:
+                with interrupts_between_steps(stopper):
+                    model.learn(n_timesteps, **kwargs)
+            except KeyboardInterrupt:  # a second Ctrl-C: stop at once
+                stopper.requested = True
+            if stopper.requested:
+                self.interrupted = True
+                print(f"Interrupted at step {model.num_timesteps}: saving a resumable checkpoint")
+                with sigint_ignored():  # a Ctrl-C now would leave the previous checkpoint only
+                    path = save_checkpoint(model, self.save_path, str(self.env_name))
+                print(f"Resumable checkpoint in {path}: continue with sb3-gcrl train --resume {self.save_path}")
         finally:
             if self.callbacks:
                 self.callbacks[0].on_training_end()  # clean the progress bar (as RL-Zoo)
             assert model.env is not None
             with contextlib.suppress(EOFError):
                 model.env.close()
+
+
+class StopOnInterrupt(BaseCallback):
+    """Stop training after the step in which Ctrl-C came (:func:`interrupts_between_steps` sets :attr:`requested`),
+    once every callback before this one has done its work for that step (an evaluation due at it, a checkpoint), so
+    that the checkpoint saved then is consistent with the run's logs."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        #: whether Ctrl-C asked training to stop
+        self.requested = False
+
+    def _on_step(self) -> bool:
+        return not self.requested
+
+
+@contextlib.contextmanager
+def interrupts_between_steps(stopper: StopOnInterrupt) -> Iterator[None]:
+    """Inside the block, Ctrl-C (SIGINT) asks ``stopper`` to stop training after the current step; a second Ctrl-C
+    raises KeyboardInterrupt at once. Outside the main thread nothing changes.
+
+    :param stopper: the callback that stops training.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def request_stop(signum: int, frame: Any) -> None:
+        if stopper.requested:
+            raise KeyboardInterrupt
+        stopper.requested = True
+        print(
+            "\nCtrl-C: training stops after this step (its evaluation and checkpoint included) and saves a resumable "
+            "checkpoint; Ctrl-C again to stop at once",
+            flush=True,
+        )
+
+    previous = signal.signal(signal.SIGINT, request_stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @contextlib.contextmanager
