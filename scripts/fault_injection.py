@@ -6,9 +6,9 @@ after the last checkpoint are lost). ``sb3-gcrl train --resume`` then continues 
 resume is interrupted the same way once more, before a last resume finishes the run. A run *survived* when it ends
 with its full budget: the final model at the run's step budget (or within one ``train_freq`` chunk past it, as
 SB3's own ``learn`` ends when the budget is not a multiple of ``train_freq``), one evaluation per ``--eval-freq``
-steps in ``evaluations.npz`` (none lost, none twice), a readable monitor CSV and no partial checkpoint left behind. *Work
-lost* per interruption is the env steps of the monitor CSV at that moment beyond the checkpoint the run resumed
-from (steps of segments still open are not counted).
+steps in ``evaluations.npz`` (none lost, none twice), a readable monitor CSV and no partial checkpoint left
+behind. *Work lost* per interruption is the env steps of the monitor CSV at that moment beyond the checkpoint the
+run resumed from (steps of segments still open are not counted).
 
 Algorithms (tiny budgets and networks, so a trial takes well under a minute of one core):
 
