@@ -46,8 +46,8 @@ RUNS: dict[str, dict[str, Any]] = {
     "morefree": {
         "env": "GCRL/PointUMazeGoal-v0",
         "arguments": [
-            "--algo", "morefree", "-conf", "morefree_pointumaze_morefree_cpu", "-n", "2000", "--save-freq", "250",
-            "-params", "learning_starts:1000", "compile_train_step:False",
+            "--algo", "morefree", "-conf", "morefree_pointumaze_morefree_cpu", "-n", "1600", "--save-freq", "200",
+            "-params", "learning_starts:1200", "compile_train_step:False",
         ],
     },
     "cec": {
