@@ -29,6 +29,11 @@ def see_installed_dependencies(python: Path) -> None:
     (Path(purelib) / "installed_dependencies.pth").write_text("\n".join(site_dirs) + "\n")
 
 
+def run_python(python: Path, code: str, cwd: Path) -> str:
+    """What ``python -c code`` prints, run in ``cwd``."""
+    return subprocess.run([str(python), "-c", code], cwd=cwd, check=True, capture_output=True, text=True).stdout
+
+
 def test_wheel_installs_into_a_fresh_venv_and_trains_with_its_shipped_config(tmp_path: Path):
     # the wheel, built from a copy of the tree (the build leaves build/ behind) without build isolation
     source = tmp_path / "source"
@@ -49,24 +54,14 @@ def test_wheel_installs_into_a_fresh_venv_and_trains_with_its_shipped_config(tmp
     subprocess.run([str(python), "-m", "pip", "install", "--no-deps", "--no-index", str(wheels[0])], check=True)
     work = tmp_path / "elsewhere"  # not the clone: nothing to find by relative path
     work.mkdir()
-    location = subprocess.run(
-        [str(python), "-c", "import sb3_gcrl, sb3_gcrl.cli as c; print(sb3_gcrl.__file__); print(c.ZOO_CONFIGS_DIR)"],
-        cwd=work,
-        check=True,
-        capture_output=True,
-        text=True,
-    ).stdout.split()
-    assert all(str(venv) in line for line in location), location  # the wheel's copy, not this tree
+    location = run_python(
+        python, "import sb3_gcrl, sb3_gcrl.cli as c; print(sb3_gcrl.__file__); print(c.ZOO_CONFIGS_DIR)", work
+    )
+    assert all(str(venv) in line for line in location.split()), location  # the wheel's copy, not this tree
     import stable_baselines3
 
-    dependency = subprocess.run(
-        [str(python), "-c", "import stable_baselines3; print(stable_baselines3.__file__)"],
-        cwd=work,
-        check=True,
-        capture_output=True,
-        text=True,
-    ).stdout.strip()
-    assert dependency == stable_baselines3.__file__  # this env's dependencies (a venv's or conda env's own)
+    dependency = run_python(python, "import stable_baselines3; print(stable_baselines3.__file__)", work)
+    assert dependency.strip() == stable_baselines3.__file__  # this env's dependencies (a venv's or conda env's own)
     train = subprocess.run(
         [str(launcher), "train", "--algo", "cec", "--env", "GCRL/GrowingTree-v0", "-n", "500", "-f", "logs"],
         cwd=work,
