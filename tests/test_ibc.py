@@ -9,7 +9,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
-from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.env_util import make_vec_env, unwrap_wrapper
 from stable_baselines3.common.logger import configure
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 from test_contracts import assert_same_state
@@ -18,7 +18,6 @@ import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
 from sb3_gcrl.ibc import IBC, IBCCurriculumScheduler, find_ibc_scheduler, ibc_go_explore
 from sb3_gcrl.wrappers import GoExploreWrapper, ResetFreeWrapper
-from sb3_gcrl.wrappers.mode import find_wrapper
 
 ENV_ID = "GCRL/GrowingTreeGoal-v0"  # 1-D heights; rho_0 = 0, rho_g* = 1; actions change the height by <= 0.1
 TINY = {"net_arch": [16]}
@@ -314,7 +313,7 @@ def test_every_config_builds_its_ibc_env(config: Path):
     env.reset(seed=0)
     env.set_training_mode(True)
     env.action_space.seed(0)
-    wrapper = find_wrapper(env, GoExploreWrapper)
+    wrapper = unwrap_wrapper(env, GoExploreWrapper)
     for _ in range(2 * wrapper.go_steps + 2):  # a forward segment (random actions: no success), then a back one
         _, _, terminated, truncated, _ = env.step(env.action_space.sample())
         if terminated or truncated:

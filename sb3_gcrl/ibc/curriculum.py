@@ -32,11 +32,11 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from stable_baselines3.common.env_util import unwrap_wrapper
 
 from sb3_gcrl.goals.schedulers import GoalScheduler
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.wrappers.go_explore import GoExploreWrapper
-from sb3_gcrl.wrappers.mode import find_wrapper
 from sb3_gcrl.wrappers.reset_free import ResetFreeWrapper
 
 #: goal kinds of the IBC phases (the first two are run by the forward agent)
@@ -293,7 +293,7 @@ def ibc_go_explore(
         if key in kwargs:
             raise ValueError(f"ibc_go_explore sets {key} itself: remove it from curriculum_kwargs")
     if go_steps is None:
-        reset_free = find_wrapper(env, ResetFreeWrapper)
+        reset_free = unwrap_wrapper(env, ResetFreeWrapper)
         if reset_free is None or reset_free.eval_horizon is None:
             raise ValueError("ibc_go_explore needs go_steps, or a ResetFreeWrapper below that states eval_horizon")
         go_steps = int(reset_free.eval_horizon)
@@ -321,6 +321,6 @@ class _SuccessTest:
 
 def find_ibc_scheduler(env: gym.Env) -> IBCCurriculumScheduler | None:
     """The IBC scheduler inside one (wrapped) env, if any."""
-    wrapper = find_wrapper(env, GoExploreWrapper)
+    wrapper = unwrap_wrapper(env, GoExploreWrapper)
     scheduler = None if wrapper is None else wrapper.scheduler
     return scheduler if isinstance(scheduler, IBCCurriculumScheduler) else None

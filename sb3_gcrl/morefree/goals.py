@@ -144,9 +144,9 @@ def morefree_go_explore(
 
 def find_agent_hooks(env: gym.Env) -> tuple[PEGScheduler | None, AgentExploreAction | None]:
     """The PEG scheduler and the Explore-action slot inside one (wrapped) env, if any."""
-    from sb3_gcrl.wrappers.mode import find_wrapper
+    from stable_baselines3.common.env_util import unwrap_wrapper
 
-    wrapper = find_wrapper(env, GoExploreWrapper)
+    wrapper = unwrap_wrapper(env, GoExploreWrapper)
     if wrapper is None:
         return None, None
     scheduler = wrapper.scheduler

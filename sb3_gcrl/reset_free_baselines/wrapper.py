@@ -25,11 +25,11 @@ from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
+from stable_baselines3.common.env_util import unwrap_wrapper
 
 from sb3_gcrl.goals.schedulers import EvaluationGoalScheduler
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
-from sb3_gcrl.wrappers.mode import find_wrapper
 from sb3_gcrl.wrappers.reset_free import ResetFreeWrapper
 
 #: the two phases, in the order they alternate
@@ -81,7 +81,7 @@ class ForwardBackwardWrapper(GoalCommandWrapper):
         success_distance: float | None = None,
         task_goal_capacity: int = 10_000,
     ) -> None:
-        reset_free = find_wrapper(env, ResetFreeWrapper)
+        reset_free = unwrap_wrapper(env, ResetFreeWrapper)
         if reset_free is None or reset_free.segment_length is None:
             raise ValueError(
                 "ForwardBackwardWrapper needs a ResetFreeWrapper below it with segment_length set (the phase length, "

@@ -22,10 +22,10 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from stable_baselines3.common.env_util import unwrap_wrapper
 
 from sb3_gcrl.goals.schedulers import GoalScheduler
 from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
-from sb3_gcrl.wrappers.mode import find_wrapper
 from sb3_gcrl.wrappers.reset_free import ResetFreeWrapper
 
 ExplorePolicy = Callable[[dict[str, np.ndarray], np.random.Generator], np.ndarray]
@@ -86,7 +86,7 @@ class GoExploreWrapper(GoalCommandWrapper):
             task_goal_capacity=task_goal_capacity,
         )
         super().__init__(env, scheduler, scheduler_kwargs, success_distance, task_goal_capacity)
-        reset_free = find_wrapper(env, ResetFreeWrapper)
+        reset_free = unwrap_wrapper(env, ResetFreeWrapper)
         below = None if reset_free is None else reset_free.eval_horizon
         if eval_horizon is not None and below is not None and int(eval_horizon) != below:
             raise ValueError(

@@ -25,12 +25,13 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from stable_baselines3.common.env_util import unwrap_wrapper
 
 from sb3_gcrl.goals.schedulers import GoalScheduler, make_scheduler
 from sb3_gcrl.goals.task_goals import GoalKind, TaskRelevantGoals
 from sb3_gcrl.memory.validation import check_finite_rewards
 from sb3_gcrl.wrappers.goal_env import check_goal_env
-from sb3_gcrl.wrappers.mode import TrainingModeMixin, find_wrapper
+from sb3_gcrl.wrappers.mode import TrainingModeMixin
 
 
 def scalar_reward(reward: Any) -> float:
@@ -100,7 +101,7 @@ class GoalCommandWrapper(
             raise ValueError(f"success_distance must be > 0, got {success_distance}")
         self.success_distance = success_distance
         # a mode-switched wrapper below (ResetFreeWrapper) gets the switches passed on and warns instead of this one
-        self._mode_below: TrainingModeMixin | None = find_wrapper(env, TrainingModeMixin)
+        self._mode_below: TrainingModeMixin | None = unwrap_wrapper(env, TrainingModeMixin)
         self._init_training_mode(warns=self._mode_below is None)
         self._pass_mode_to(self._mode_below)  # this wrapper reports the segments, not the one below
         self.goal: np.ndarray | None = None

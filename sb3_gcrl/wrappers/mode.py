@@ -26,6 +26,7 @@ import warnings
 from typing import Any
 
 import gymnasium as gym
+from stable_baselines3.common.env_util import unwrap_wrapper
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -81,7 +82,7 @@ class TrainingModeMixin:
         self._recording = False
         self._has_mode_above = False
         env = self.env  # type: ignore[attr-defined]
-        self._segments = SegmentRecorder(find_wrapper(env, Monitor))
+        self._segments = SegmentRecorder(unwrap_wrapper(env, Monitor))
 
     def _pass_mode_to(self, below: TrainingModeMixin | None) -> None:
         """Make ``below`` (a mode-switched wrapper under this one) follow this wrapper's mode without reporting."""
@@ -178,21 +179,6 @@ class TrainingModeMixin:
             UserWarning,
             stacklevel=3,
         )
-
-
-def find_wrapper(env: gym.Env, wrapper_class: type) -> Any:
-    """The outermost wrapper of ``wrapper_class`` in ``env``'s chain (``env`` itself included), or None.
-
-    :param env: a (wrapped) env.
-    :param wrapper_class: the class looked for.
-    :return: the wrapper, or None.
-    """
-    inner: Any = env
-    while isinstance(inner, gym.Wrapper):
-        if isinstance(inner, wrapper_class):
-            return inner
-        inner = inner.env
-    return None
 
 
 def switch_training_envs(env: VecEnv, callback_path: str, wrap_hint: str) -> None:
