@@ -65,10 +65,16 @@ class ResumableExperimentManager(ExperimentManager):
         self.interrupted = False
         self.resume_from = resume_from
         self._checkpoint: Path | None = None
+        self._finished_before = False
         if resume_from is not None:
             self._checkpoint = Path(self.trained_agent).parent
             self.save_path = str(resume_from)
             self.params_path = f"{self.save_path}/{self.env_name}"
+
+    def save_trained_model(self, model: BaseAlgorithm) -> None:
+        """RL-Zoo's final save, unless a resumed run had nothing left to train (its files stay as they are)."""
+        if not self._finished_before:
+            super().save_trained_model(model)
 
     @property
     def resuming(self) -> bool:
@@ -128,6 +134,7 @@ class ResumableExperimentManager(ExperimentManager):
             n_timesteps = self.n_timesteps - model.num_timesteps
             if n_timesteps <= 0:
                 print(f"The run in {self.save_path} has its {self.n_timesteps} steps already: nothing to resume")
+                self._finished_before = True
                 return
             kwargs["reset_num_timesteps"] = False
         stopper = StopOnInterrupt()
@@ -277,6 +284,17 @@ def resume_arguments(run_dir: Path) -> tuple[list[str], Path]:
         checkpoint = latest_checkpoint(run_dir)
     except CheckpointError as error:
         raise SystemExit(f"sb3-gcrl train --resume: {error}") from None
+    final_model = saved[0].parent.parent / f"{saved[0].parent.name}.zip"
+    if final_model.is_file():
+        from stable_baselines3.common.save_util import load_from_zip_file
+
+        final_steps = int(load_from_zip_file(final_model)[0]["num_timesteps"])
+        if final_steps > checkpoint_steps(checkpoint):
+            raise SystemExit(
+                f"sb3-gcrl train --resume: the run in {run_dir} finished: its final model ({final_model.name}, "
+                f"{final_steps} steps) is newer than its newest checkpoint ({checkpoint_steps(checkpoint)} steps), "
+                "so there is nothing to resume"
+            )
     arguments: list[str] = json.loads(saved[0].read_text())
     kept: list[str] = []
     skip = False

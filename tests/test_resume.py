@@ -215,3 +215,22 @@ def test_an_interruption_during_an_evaluation_keeps_that_evaluation(tmp_path: Pa
     evaluation = EvalCallback(model.get_env(), eval_freq=30, n_eval_episodes=1, log_path=str(tmp_path))
     model.learn(300, callback=[CtrlCAt(), evaluation, stopper])
     assert model.num_timesteps == 60 and evaluation.evaluations_timesteps == [30, 60]
+
+
+def test_resume_of_a_finished_run_changes_nothing(tmp_path: Path) -> None:
+    """A run that ended normally after its last checkpoint is not trained again from that checkpoint."""
+    run = subprocess.run(
+        [sys.executable, "-m", "sb3_gcrl", *TRAIN[: TRAIN.index("-n")], "-n", "1100", *TRAIN[TRAIN.index("-n") + 2 :]],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    run_dir = tmp_path / "logs" / "sac" / f"{ENV_NAME}_1"
+    assert checkpoint_steps(latest_checkpoint(run_dir)) == 1000
+    from sb3_gcrl.cli import main
+
+    final = (run_dir / f"{ENV_NAME}.zip").read_bytes()
+    with pytest.raises(SystemExit, match="finished: its final model"):
+        main(["train", "--resume", str(run_dir)])
+    assert (run_dir / f"{ENV_NAME}.zip").read_bytes() == final
