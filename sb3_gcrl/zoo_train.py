@@ -148,7 +148,7 @@ class ResumableExperimentManager(ExperimentManager):
             if stopper.requested:
                 self.interrupted = True
                 print(f"Interrupted at step {model.num_timesteps}: saving a resumable checkpoint")
-                with sigint_ignored():  # a Ctrl-C now would leave the previous checkpoint only
+                with sigint_handled_by(signal.SIG_IGN):  # a Ctrl-C now would leave the previous checkpoint only
                     path = save_checkpoint(model, self.save_path, str(self.env_name))
                 print(f"Resumable checkpoint in {path}: continue with sb3-gcrl train --resume {self.save_path}")
         finally:
@@ -180,9 +180,6 @@ def interrupts_between_steps(stopper: StopOnInterrupt) -> Iterator[None]:
 
     :param stopper: the callback that stops training.
     """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
 
     def request_stop(signum: int, frame: Any) -> None:
         if stopper.requested:
@@ -194,20 +191,18 @@ def interrupts_between_steps(stopper: StopOnInterrupt) -> Iterator[None]:
             flush=True,
         )
 
-    previous = signal.signal(signal.SIGINT, request_stop)
-    try:
+    with sigint_handled_by(request_stop):
         yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 @contextlib.contextmanager
-def sigint_ignored() -> Iterator[None]:
-    """Ignore SIGINT (Ctrl-C) inside the block, when called from the main thread (elsewhere nothing changes)."""
+def sigint_handled_by(handler: Any) -> Iterator[None]:
+    """Handle SIGINT (Ctrl-C) with ``handler`` (a function or ``signal.SIG_IGN``) inside the block, when called from the
+    main thread (elsewhere nothing changes); the previous handler comes back after it."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    previous = signal.signal(signal.SIGINT, handler)
     try:
         yield
     finally:

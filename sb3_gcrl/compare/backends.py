@@ -62,10 +62,10 @@ class LocalProcessBackend(Backend):
     """At most ``n_workers`` runs at a time, each in a fresh ``python -m sb3_gcrl.compare.worker`` process.
 
     A process per run isolates runs completely: a crash (even a segfault or an out-of-memory kill) is recorded
-    as a failed run and the other runs go on. Workers run in their own session, so Ctrl-C reaches only this
-    process, which then stops the runs in flight; their output goes to each run's ``train.log``, and they get
-    one thread for torch and OpenMP (faiss, MKL). Workers die with this process, even when it is SIGKILLed
-    (:func:`~sb3_gcrl.compare.worker.die_with_parent`).
+    as a failed run and the other runs go on. Workers run detached from the terminal's process group, so Ctrl-C
+    reaches only this process, which then stops the runs in flight; their output goes to each run's
+    ``train.log``, and they get one thread for torch and OpenMP (faiss, MKL). Workers die with this process,
+    even when it is SIGKILLed (:func:`~sb3_gcrl.compare.worker.die_with_parent`).
 
     :param n_workers: parallel runs; default: the number of available cores.
     :param poll_interval: seconds between checks of the workers.
