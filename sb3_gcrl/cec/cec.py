@@ -13,8 +13,8 @@ from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_gcrl.cec.policies import CECPolicy
 from sb3_gcrl.common.episodic_control import EpisodicControlAlgorithm
+from sb3_gcrl.common.validation import check_float, check_int
 from sb3_gcrl.memory.knn import KNNBackend
-from sb3_gcrl.memory.validation import check_float, check_int
 
 
 class CEC(EpisodicControlAlgorithm):

@@ -11,9 +11,9 @@ from gymnasium import spaces
 from sb3_gcrl.common.actors import cec_actions
 from sb3_gcrl.common.episodic_control import EpisodicControlPolicy
 from sb3_gcrl.common.saving import refuse_learning_rate_schedule
+from sb3_gcrl.common.validation import check_float
 from sb3_gcrl.memory.cec_memory import CECMemory
 from sb3_gcrl.memory.knn import KNNBackend
-from sb3_gcrl.memory.validation import check_float
 
 
 class CECPolicy(EpisodicControlPolicy):

@@ -31,10 +31,10 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import LinearSchedule, safe_mean
 
 from sb3_gcrl.common.saving import ModelFileMixin
+from sb3_gcrl.common.validation import check_choice, check_finite_rewards, check_float, check_int, check_optional_int
 from sb3_gcrl.memory.embedding import KeyEmbedding
 from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
-from sb3_gcrl.memory.knn import KNNBackend
-from sb3_gcrl.memory.validation import check_finite_rewards, check_float, check_int, check_optional_int
+from sb3_gcrl.memory.knn import KNN_BACKENDS, KNNBackend
 
 SelfEpisodicControlAlgorithm = TypeVar("SelfEpisodicControlAlgorithm", bound="EpisodicControlAlgorithm")
 
@@ -264,8 +264,7 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
         projection_dim = check_optional_int("projection_dim", projection_dim)
         rebuild_threshold = check_optional_int("rebuild_threshold", rebuild_threshold)
         stats_window_size = check_int("stats_window_size", stats_window_size)
-        if knn_backend not in ("auto", "kdtree", "flat"):
-            raise ValueError(f"Unknown knn_backend {knn_backend!r}; use 'auto', 'kdtree' or 'flat'")
+        check_choice("knn_backend", knn_backend, KNN_BACKENDS)
         #: seed given to :meth:`set_random_seed` while no env was attached, applied by :meth:`set_env`
         self._pending_env_seed: int | None = None
         super().__init__(

@@ -19,11 +19,11 @@ from torch.nn import functional as F
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
-from sb3_gcrl.emac.memory import NeighbourWeighting, check_neighbour_weighting
+from sb3_gcrl.common.validation import check_choice, check_float, check_int, check_optional_int
+from sb3_gcrl.emac.memory import NEIGHBOUR_WEIGHTINGS, NeighbourWeighting
 from sb3_gcrl.emac.policies import EMACPolicy, MultiInputEMACPolicy
 from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
-from sb3_gcrl.memory.knn import KNNBackend
-from sb3_gcrl.memory.validation import check_float, check_int, check_optional_int
+from sb3_gcrl.memory.knn import KNN_BACKENDS, KNNBackend
 from sb3_gcrl.two_memory.dispatch import truncated_ends
 
 
@@ -116,12 +116,10 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
         self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
         self.projection_dim = check_optional_int("projection_dim", projection_dim)
         self.memory_capacity = check_int("memory_capacity", memory_capacity)
-        self.neighbour_weighting = check_neighbour_weighting(neighbour_weighting)
+        self.neighbour_weighting = check_choice("neighbour_weighting", neighbour_weighting, NEIGHBOUR_WEIGHTINGS)
         self.observation_keys = None if observation_keys is None else list(observation_keys)
         self.memory_update_truncated = bool(memory_update_truncated)
-        if knn_backend not in ("auto", "kdtree", "flat"):
-            raise ValueError(f"Unknown knn_backend {knn_backend!r}; use 'auto', 'kdtree' or 'flat'")
-        self.knn_backend = knn_backend
+        self.knn_backend = check_choice("knn_backend", knn_backend, KNN_BACKENDS)
         policy_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})  # never the caller's dict
         for name in ("memory_capacity", "n_neighbors", "projection_dim", "neighbour_weighting", "observation_keys"):
             if name in policy_kwargs:
@@ -157,6 +155,7 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
                 f"{getattr(self.policy_class, '__name__', self.policy_class)}"
             )
         self.policy_kwargs = {
+            "memory_seed": self.seed,  # the projection matrix follows the model's seed (a loaded model keeps its own)
             **self.policy_kwargs,
             "memory_capacity": self.memory_capacity,
             "n_neighbors": self.n_neighbors,

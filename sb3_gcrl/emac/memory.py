@@ -15,29 +15,18 @@ oldest).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from gymnasium import spaces
 
+from sb3_gcrl.common.validation import check_choice, check_finite_returns
 from sb3_gcrl.memory.embedding import KeyEmbedding
 from sb3_gcrl.memory.knn import KNNBackend
-from sb3_gcrl.memory.validation import check_finite_returns
 from sb3_gcrl.memory.value_table import KNNValueTable
 
 NeighbourWeighting = Literal["softmin", "uniform"]
 NEIGHBOUR_WEIGHTINGS: tuple[str, ...] = ("softmin", "uniform")
-
-
-def check_neighbour_weighting(value: Any) -> NeighbourWeighting:
-    """Return ``value`` if it names a neighbour weighting, else raise a ``ValueError`` listing the choices.
-
-    :param value: ``"softmin"`` or ``"uniform"``.
-    :return: the weighting.
-    """
-    if value not in NEIGHBOUR_WEIGHTINGS:
-        raise ValueError(f"neighbour_weighting must be one of {NEIGHBOUR_WEIGHTINGS}, got {value!r}")
-    return value
 
 
 class StateActionEmbedding:
@@ -114,7 +103,9 @@ class EMACMemory(KNNValueTable):
         rebuild_threshold: int | None = None,
     ) -> None:
         super().__init__(key_dim, capacity, n_neighbors, knn_backend, rebuild_threshold)
-        self.neighbour_weighting = check_neighbour_weighting(neighbour_weighting)
+        self.neighbour_weighting: NeighbourWeighting = check_choice(
+            "neighbour_weighting", neighbour_weighting, NEIGHBOUR_WEIGHTINGS
+        )
 
     def add_episode(self, keys: np.ndarray, returns: np.ndarray) -> int:
         """Write every step of a finished episode, in time order (one row each).

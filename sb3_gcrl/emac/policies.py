@@ -18,9 +18,9 @@ from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.td3.policies import TD3Policy
 
 from sb3_gcrl.common.episodic_control import load_memory_state, memory_state
+from sb3_gcrl.common.validation import check_int, check_optional_int
 from sb3_gcrl.emac.memory import EMACMemory, NeighbourWeighting, StateActionEmbedding
 from sb3_gcrl.memory.knn import KNNBackend
-from sb3_gcrl.memory.validation import check_int, check_optional_int
 
 
 class EMACPolicy(TD3Policy):
@@ -34,8 +34,8 @@ class EMACPolicy(TD3Policy):
     :param projection_dim: dimension of the random projection of (state, action) (authors: 4; ``None``: none).
     :param neighbour_weighting: ``"softmin"`` (authors' code) or ``"uniform"`` weights of the ``k`` values.
     :param observation_keys: Dict observation keys in the memory key, in order.
-    :param memory_seed: seed of the projection matrix (``None``: drawn from numpy's global generator, which SB3
-        seeds).
+    :param memory_seed: seed of the projection matrix (:class:`~sb3_gcrl.EMAC` passes its ``seed``; ``None``: fresh
+        entropy).
     :param knn_backend: kNN backend of the memory (see :class:`~sb3_gcrl.memory.KNNIndex`).
     :param kwargs: :class:`~stable_baselines3.td3.policies.TD3Policy` arguments (``net_arch``, ``n_critics``...).
     """
@@ -66,7 +66,7 @@ class EMACPolicy(TD3Policy):
     ) -> None:
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
         if memory_seed is None:
-            memory_seed = int(np.random.randint(2**31 - 1))
+            memory_seed = int(np.random.default_rng().integers(2**31 - 1))
         self.memory_capacity = check_int("memory_capacity", memory_capacity)
         self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
         self.projection_dim = check_optional_int("projection_dim", projection_dim)

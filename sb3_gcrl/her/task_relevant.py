@@ -18,17 +18,18 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_gcrl.her.executed_action import ExecutedActionHerReplayBuffer, check_n_sampled_goal
+from sb3_gcrl.common.validation import check_n_sampled_goal
+from sb3_gcrl.her.executed_action import ExecutedActionHerReplayBuffer
 
-#: the env method (provided by :class:`sb3_gcrl.wrappers.GoalCommandWrapper`) serving rho_0 / rho_g* samples
-TASK_GOALS_METHOD = "sample_task_goals"
+#: the env method (provided by :class:`sb3_gcrl.wrappers.GoalCommandWrapper`) serving rho_0 / rho_g* goals for
+#: relabeled transitions, drawn with the env's seeded generator
+TASK_GOALS_METHOD = "sample_relabel_task_goals"
 
 
 def _serves_task_goals(env: VecEnv) -> bool:
-    """Whether every env of ``env`` serves ``sample_task_goals`` (checked without pickling bound methods)."""
+    """Whether every env of ``env`` serves the task-relevant goals (checked without pickling bound methods)."""
     from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
 
     if all(env.env_is_wrapped(GoalCommandWrapper)):
@@ -46,33 +47,24 @@ class TaskRelevantHerReplayBuffer(ExecutedActionHerReplayBuffer):
     which serves the task-relevant goals. From an RL-Zoo YAML (where ``replay_buffer_class`` is ``eval``-ed and a
     dotted path fails) write ``replay_buffer_class: "__import__('sb3_gcrl.her').her.TaskRelevantHerReplayBuffer"``.
 
-    :param buffer_size: see :class:`HerReplayBuffer`.
-    :param observation_space: see :class:`HerReplayBuffer`.
-    :param action_space: see :class:`HerReplayBuffer`.
-    :param env: the training VecEnv (serves ``compute_reward`` and the task-relevant goals).
+    :param args: the :class:`~sb3_gcrl.her.ExecutedActionHerReplayBuffer` arguments (``buffer_size``,
+        ``observation_space``, ``action_space``, ``env``: the training VecEnv, which serves ``compute_reward`` and
+        the task-relevant goals, ...).
     :param task_goal_ratio: alpha of Section 3.4.2 (thesis: 0.2); 0 gives standard HER (with executed actions);
         ``None`` (default) reads alpha from the env's scheduler.
     :param kwargs: the other :class:`HerReplayBuffer` arguments (``n_sampled_goal``, ``goal_selection_strategy``...);
         ``n_sampled_goal`` must be >= 1 while alpha > 0 (alpha acts on the relabeled goals).
     """
 
-    def __init__(
-        self,
-        buffer_size: int,
-        observation_space: spaces.Dict,
-        action_space: spaces.Space,
-        env: VecEnv,
-        task_goal_ratio: float | None = None,
-        **kwargs: Any,
-    ) -> None:
+    def __init__(self, *args: Any, task_goal_ratio: float | None = None, **kwargs: Any) -> None:
         if task_goal_ratio is not None and not 0.0 <= task_goal_ratio <= 1.0:
             raise ValueError(f"task_goal_ratio (alpha) must be in [0, 1], got {task_goal_ratio}")
-        super().__init__(buffer_size, observation_space, action_space, env, **kwargs)
+        super().__init__(*args, **kwargs)
         #: alpha as given (None: the env's scheduler's); the alpha in use is :attr:`task_goal_ratio`
         self.given_task_goal_ratio = None if task_goal_ratio is None else float(task_goal_ratio)
         self.task_goal_ratio: float | None = self.given_task_goal_ratio
-        if env is not None:
-            self._resolve_task_goal_ratio(env)
+        if self.env is not None:
+            self._resolve_task_goal_ratio(self.env)
 
     def _resolve_task_goal_ratio(self, env: VecEnv) -> None:
         """Settle alpha against the env: read it from the scheduler, or check the given one matches it."""
@@ -118,13 +110,8 @@ class TaskRelevantHerReplayBuffer(ExecutedActionHerReplayBuffer):
             raise RuntimeError("TaskRelevantHerReplayBuffer has no env to read alpha from: call set_env() first")
         if self.task_goal_ratio == 0.0:
             return goals
-        # one uniform per relabeled transition: [0, a/2) -> rho_g*, [a/2, a) -> rho_0, [a, 1) -> standard strategy
-        u = np.random.random(len(goals))
-        half = self.task_goal_ratio / 2.0
-        for kind, mask in (("evaluation", u < half), ("initial", (u >= half) & (u < self.task_goal_ratio))):
-            n = int(mask.sum())
-            if n > 0:
-                assert self.env is not None, "call set_env() after loading the buffer"
-                flat = self.env.env_method(TASK_GOALS_METHOD, kind, n, indices=[0])[0]
-                goals[mask] = flat.reshape(n, *goals.shape[1:])  # the buffer's goal layout (image, Discrete (1,))
+        assert self.env is not None, "call set_env() after loading the buffer"
+        # the env draws which relabeled transitions get a rho_g* / rho_0 goal (alpha/2 each), with its seeded generator
+        rows, task_goals = self.env.env_method(TASK_GOALS_METHOD, len(goals), self.task_goal_ratio, indices=[0])[0]
+        goals[rows] = task_goals.reshape(len(rows), *goals.shape[1:])  # the buffer's goal layout (image, Discrete (1,))
         return goals

@@ -18,7 +18,7 @@ Public API (all batched over queries; keys are ``(n, key_dim)`` float32 arrays):
 * :class:`EpisodeBuffers`, :func:`discounted_returns` — per-env running episodes and their returns (the one
   episode layer of CEC, MFEC, the 2M agents and tabular episodic control).
 
-Hyperparameters and saved states are checked by :mod:`sb3_gcrl.memory.validation` (errors name the
+Hyperparameters and saved states are checked by :mod:`sb3_gcrl.common.validation` (errors name the
 parameter); the SB3 base classes of CEC and MFEC, and the actors shared with 2M, are in :mod:`sb3_gcrl.common`.
 """
 

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
+from sb3_gcrl.common.validation import check_finite_returns, check_float, check_int, check_saved_rows
 from sb3_gcrl.memory.knn import KNNBackend, KNNIndex
 from sb3_gcrl.memory.recency import RecencyOrder
-from sb3_gcrl.memory.validation import check_finite_returns, check_float, check_int, check_saved_rows
 
 #: outcome codes of :meth:`CECMemory.update`
 ADDED, REPLACED, REFRESHED, EVICTED = "added", "replaced", "refreshed", "evicted"

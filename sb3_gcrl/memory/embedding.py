@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 from gymnasium import spaces
 
-from sb3_gcrl.memory.validation import check_optional_int
+from sb3_gcrl.common.validation import check_optional_int
 
 #: default Dict-observation keys (and their order) for goal-conditioned envs: the state and the goal
 GOAL_ENV_KEYS: tuple[str, ...] = ("observation", "desired_goal")

@@ -25,7 +25,11 @@ import faiss
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sb3_gcrl.common.validation import check_choice, check_int, check_optional_int
+
 KNNBackend = Literal["auto", "kdtree", "flat"]
+#: the values of :data:`KNNBackend`
+KNN_BACKENDS: tuple[str, ...] = ("auto", "kdtree", "flat")
 
 #: above this key dimension ``backend="auto"`` uses faiss brute force instead of a KD-tree
 KDTREE_MAX_DIM = 16
@@ -54,16 +58,10 @@ class KNNIndex:
         backend: KNNBackend = "auto",
         rebuild_threshold: int | None = None,
     ) -> None:
-        if dim < 1:
-            raise ValueError(f"Key dimension must be >= 1, got {dim}")
-        if capacity < 1:
-            raise ValueError(f"Memory capacity must be >= 1, got {capacity}")
-        if backend not in ("auto", "kdtree", "flat"):
-            raise ValueError(f"Unknown kNN backend {backend!r}; use 'auto', 'kdtree' or 'flat'")
-        if rebuild_threshold is not None and rebuild_threshold < 1:
-            raise ValueError(f"rebuild_threshold must be >= 1 or None, got {rebuild_threshold}")
-        self.dim = int(dim)
-        self.capacity = int(capacity)
+        self.dim = check_int("key dimension", dim)
+        self.capacity = check_int("memory capacity", capacity)
+        check_choice("knn_backend", backend, KNN_BACKENDS)
+        check_optional_int("rebuild_threshold", rebuild_threshold)
         self.backend: Literal["kdtree", "flat"] = (
             ("kdtree" if dim <= KDTREE_MAX_DIM else "flat") if backend == "auto" else backend
         )

@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from sb3_gcrl.common.validation import check_finite_returns, check_int
 from sb3_gcrl.memory.knn import KNNBackend
-from sb3_gcrl.memory.validation import check_finite_returns, check_int
 from sb3_gcrl.memory.value_table import KNNValueTable
 
 

@@ -1,158 +1,19 @@
-"""Checks of hyperparameters and of saved memory states, with errors that name the offending parameter.
-
-Shared by the memories, the episodic-control policies and the algorithms, so that a bad value fails
-at construction with the same message wherever it enters (``CEC(capacity=1.7)``, ``CECMemory(...)``,
-``policy_kwargs``), and a corrupted saved memory fails with what is wrong with it.
-"""
+"""Deprecated location of the package's argument checks: use :mod:`sb3_gcrl.common.validation`."""
 
 from __future__ import annotations
 
-import math
-import numbers
-from collections.abc import Mapping, Sequence
+import warnings
 from typing import Any
 
-import numpy as np
+from sb3_gcrl.common import validation as _validation
 
 
-def check_int(name: str, value: Any, minimum: int = 1) -> int:
-    """Return ``value`` as an ``int`` after checking that it is an integer ``>= minimum``.
-
-    Integral floats (``1e6``, or YAML's ``!!float 1e6``) are accepted; ``1.7`` is not truncated.
-
-    :param name: parameter name used in the error message.
-    :param value: the value to check.
-    :param minimum: smallest allowed value.
-    :return: ``value`` as a Python ``int``.
-    :raises TypeError: if ``value`` is not a real number (``bool`` included).
-    :raises ValueError: if ``value`` is not integral or is below ``minimum``.
-    """
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be an integer, got {value!r} of type {type(value).__name__}")
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite integer, got {value!r}")
-    if value != math.floor(value):
-        suggestion = max(minimum, round(value))
-        raise ValueError(f"{name} must be an integer, got {value!r} (not truncated); pass e.g. {name}={suggestion}")
-    if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
-    return int(value)
-
-
-def check_optional_int(name: str, value: Any, minimum: int = 1) -> int | None:
-    """:func:`check_int`, letting ``None`` through.
-
-    :param name: parameter name used in the error message.
-    :param value: the value to check, or ``None``.
-    :param minimum: smallest allowed value.
-    :return: ``value`` as an ``int``, or ``None``.
-    """
-    return None if value is None else check_int(name, value, minimum)
-
-
-def check_float(
-    name: str,
-    value: Any,
-    minimum: float | None = None,
-    maximum: float | None = None,
-    exclusive_minimum: bool = False,
-) -> float:
-    """Return ``value`` as a finite ``float`` within ``[minimum, maximum]`` (``(minimum, maximum]`` if
-    ``exclusive_minimum``).
-
-    :param name: parameter name used in the error message.
-    :param value: the value to check.
-    :param minimum: lower bound, ``None`` for none.
-    :param maximum: upper bound (inclusive), ``None`` for none.
-    :param exclusive_minimum: whether ``value == minimum`` is rejected.
-    :return: ``value`` as a Python ``float``.
-    :raises TypeError: if ``value`` is not a real number (``bool`` included).
-    :raises ValueError: if ``value`` is NaN, infinite or out of bounds.
-    """
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a number, got {value!r} of type {type(value).__name__}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    if minimum is not None and (value <= minimum if exclusive_minimum else value < minimum):
-        raise ValueError(f"{name} must be {'>' if exclusive_minimum else '>='} {minimum}, got {value!r}")
-    if maximum is not None and value > maximum:
-        raise ValueError(f"{name} must be <= {maximum}, got {value!r}")
-    return value
-
-
-def check_finite_rewards(rewards: float | np.ndarray, when: str, why: str, source: str | None = None) -> None:
-    """Reject a NaN or infinite reward where it enters learning, naming where it came from and ``VecCheckNan``.
-
-    :param rewards: one reward, or one per env.
-    :param when: when it was returned (e.g. ``"at timestep 120"``).
-    :param why: what a non-finite reward would break.
-    :param source: what returned it (default: ``"Env <index of the first bad reward>"``).
-    :raises ValueError: if a reward is NaN or infinite.
-    """
-    values = np.asarray(rewards, dtype=np.float64).reshape(-1)
-    if np.isfinite(values).all():
-        return
-    index = int(np.flatnonzero(~np.isfinite(values))[0])
-    raise ValueError(
-        f"{source or f'Env {index}'} returned the reward {values[index]} {when}: {why}; fix the env's reward, or wrap "
-        "it with stable_baselines3.common.vec_env.VecCheckNan to find the source"
+def __getattr__(name: str) -> Any:
+    """The check ``name`` of :mod:`sb3_gcrl.common.validation`, with a ``DeprecationWarning``."""
+    value = getattr(_validation, name)  # AttributeError for a name the module never had
+    warnings.warn(
+        f"sb3_gcrl.memory.validation is deprecated: import {name} from sb3_gcrl.common.validation",
+        DeprecationWarning,
+        stacklevel=2,
     )
-
-
-def check_finite_returns(returns: np.ndarray) -> None:
-    """Reject NaN or infinite returns before they reach a memory (one NaN would spread to every value
-    that is compared with it, silently).
-
-    :param returns: ``(T,)`` discounted returns of one episode.
-    :raises ValueError: if a return is NaN or infinite.
-    """
-    if not np.isfinite(returns).all():
-        bad = returns[~np.isfinite(returns)]
-        raise ValueError(
-            f"Episode returns contain {bad[0]} ({len(bad)} non-finite of {len(returns)}): episodic memory values "
-            "must be finite; fix the env's rewards (wrap it with stable_baselines3.common.vec_env.VecCheckNan to "
-            "find the source) or lower their scale"
-        )
-
-
-def check_saved_rows(
-    state: Mapping[str, Any],
-    owner: str,
-    key_dim: int,
-    capacity: int,
-    row_fields: Sequence[str],
-) -> np.ndarray:
-    """Check a saved memory state (``keys`` plus per-row fields, ``last_update`` and ``clock``) before
-    restoring it, and return its keys.
-
-    :param state: what the memory's ``state_dict()`` returned (possibly after a file round trip).
-    :param owner: memory name used in the error message.
-    :param key_dim: key dimension the restoring memory expects.
-    :param capacity: capacity of the restoring memory.
-    :param row_fields: names of the other per-row arrays (one entry per key, along the first axis).
-    :return: the keys as a C-contiguous ``(n, key_dim)`` float32 array.
-    :raises ValueError: naming what is missing, mis-shaped, non-finite or over capacity.
-    """
-    required = ["keys", *row_fields, "last_update", "clock"]
-    missing = [name for name in required if name not in state]
-    if missing:
-        raise ValueError(f"Saved {owner} state lacks {missing} (has {sorted(state)}); it was not written by {owner}")
-    keys = np.ascontiguousarray(state["keys"], dtype=np.float32)
-    if keys.ndim != 2 or keys.shape[1] != key_dim:
-        raise ValueError(f"Saved {owner} keys have shape {keys.shape}, this memory expects (n, {key_dim})")
-    n = len(keys)
-    if n > capacity:
-        raise ValueError(f"Saved {owner} has {n} rows, more than capacity={capacity}; raise the capacity")
-    for name in (*row_fields, "last_update"):
-        rows = np.asarray(state[name])
-        if rows.ndim == 0 or len(rows) != n:
-            raise ValueError(f"Saved {owner} is corrupted: {name!r} has shape {rows.shape}, but there are {n} keys")
-        if not np.isfinite(rows).all():
-            raise ValueError(f"Saved {owner} is corrupted: {name!r} contains NaN or inf")
-    if not np.isfinite(keys).all():
-        raise ValueError(f"Saved {owner} is corrupted: 'keys' contains NaN or inf")
-    last_update = np.asarray(state["last_update"])
-    if n and int(state["clock"]) < int(last_update.max()):
-        raise ValueError(f"Saved {owner} is corrupted: clock {int(state['clock'])} precedes its last update times")
-    return keys
+    return value

@@ -11,9 +11,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from sb3_gcrl.common.validation import check_int, check_saved_rows
 from sb3_gcrl.memory.knn import KNNBackend, KNNIndex
 from sb3_gcrl.memory.recency import RecencyOrder
-from sb3_gcrl.memory.validation import check_int, check_saved_rows
 
 
 class KNNValueTable:

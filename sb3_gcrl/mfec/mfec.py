@@ -12,8 +12,8 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_gcrl.common.episodic_control import EpisodicControlAlgorithm
+from sb3_gcrl.common.validation import check_int
 from sb3_gcrl.memory.knn import KNNBackend
-from sb3_gcrl.memory.validation import check_int
 from sb3_gcrl.mfec.policies import MFECPolicy
 
 

@@ -27,9 +27,9 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.env_util import unwrap_wrapper
 
+from sb3_gcrl.common.validation import check_finite_rewards
 from sb3_gcrl.goals.schedulers import GoalScheduler, make_scheduler
 from sb3_gcrl.goals.task_goals import GoalKind, TaskRelevantGoals
-from sb3_gcrl.memory.validation import check_finite_rewards
 from sb3_gcrl.wrappers.goal_env import check_goal_env
 from sb3_gcrl.wrappers.mode import TrainingModeMixin
 
@@ -139,6 +139,28 @@ class GoalCommandWrapper(
     def sample_task_goals(self, kind: GoalKind, n: int) -> np.ndarray:
         """Draw ``n`` goals from rho_0 (``"initial"``) or rho_g* (``"evaluation"``), shape ``(n, goal_dim)``."""
         return self.task_goals.sample(kind, self._task_goal_rng, n)
+
+    def sample_relabel_task_goals(self, n: int, alpha: float) -> tuple[np.ndarray, np.ndarray]:
+        """Task-relevant goals for ``n`` relabeled transitions (thesis Sec. 3.4.2): each one independently gets a
+        goal of rho_g* with probability alpha/2, a goal of rho_0 with probability alpha/2, and keeps its replayed
+        goal otherwise.
+
+        Drawn with this env's task-goal generator (seeded by ``reset(seed=...)`` from SB3's seed, and saved in
+        checkpoints), so relabeling is reproducible under a fixed seed.
+
+        :param n: relabeled transitions.
+        :param alpha: the share of task-relevant goals, in [0, 1].
+        :return: ``(indices, goals)``: the transitions (indices in ``[0, n)``) that get a task-relevant goal, and
+            their goals, shape ``(len(indices), goal_dim)``.
+        """
+        u = self._task_goal_rng.random(n)
+        rows = np.flatnonzero(u < alpha)
+        evaluation = u[rows] < alpha / 2.0
+        goals = np.empty((rows.size, self.task_goals.goal_dim))
+        for kind, mask in (("evaluation", evaluation), ("initial", ~evaluation)):
+            if mask.any():
+                goals[mask] = self.sample_task_goals(kind, int(mask.sum()))  # type: ignore[arg-type]
+        return rows, goals
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
         """The env's vectorised reward (gymnasium 1.x wrappers do not forward attributes)."""
