@@ -8,13 +8,11 @@ the table shows the plain mean and the [min, max] range of the runs instead, and
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pandas as pd
 from scipy.integrate import trapezoid
 
-from sb3_gcrl.post_exploration.metrics import visitation_entropy  # Eq. 6.7, re-exported for the reports
+from sb3_gcrl.common.metrics import visitation_entropy  # Eq. 6.7, re-exported for the reports
 
 __all__ = [
     "SCORE_COLUMNS",
@@ -76,7 +74,11 @@ def run_scores(
 def iqm_with_ci(
     scores: np.ndarray, confidence: float = 0.95, reps: int = 2000, seed: int = 0
 ) -> tuple[float, float, float]:
-    """Interquartile mean over runs (x tasks) and its stratified-bootstrap interval, via ``rliable``.
+    """Interquartile mean over runs (x tasks) and its stratified-bootstrap percentile interval, via ``rliable``.
+
+    The resampling draws from a ``numpy.random.Generator`` seeded with ``seed`` (rliable's own
+    ``StratifiedBootstrap`` draws from numpy's global generator), so the interval is reproducible and the global
+    random state is left alone.
 
     :param scores: shape ``(n_runs,)`` or ``(n_runs, n_tasks)``.
     :param confidence: coverage of the interval.
@@ -87,25 +89,22 @@ def iqm_with_ci(
     from rliable import library as rly
     from rliable import metrics
 
+    class SeededStratifiedBootstrap(rly.StratifiedBootstrap):
+        """rliable's stratified bootstrap (runs resampled within each task) drawing from ``self.generator``."""
+
+        def update_indices(self) -> tuple[np.ndarray, ...]:
+            indices = self.generator.choice(self._num_items, self._args_shape, replace=True)
+            return (indices, *self._strata_indices)
+
     matrix = np.asarray(scores, dtype=np.float64)
     matrix = matrix[:, None] if matrix.ndim == 1 else matrix
-    # rliable 1.2's StratifiedBootstrap draws its indices from the *global* numpy RNG (its random_state only
-    # reaches arch), so seed that one for reproducible reports and put the caller's state back afterwards
-    global_state = np.random.get_state()
-    np.random.seed(seed)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", FutureWarning)  # arch: random_state -> generator (rliable passes it)
-            point, interval = rly.get_interval_estimates(
-                {"scores": matrix},
-                lambda x: np.array([metrics.aggregate_iqm(x)]),
-                reps=reps,
-                confidence_interval_size=confidence,
-                random_state=np.random.RandomState(seed),
-            )
-    finally:
-        np.random.set_state(global_state)
-    return float(point["scores"][0]), float(interval["scores"][0, 0]), float(interval["scores"][1, 0])
+
+    def iqm(x: np.ndarray) -> np.ndarray:
+        return np.array([metrics.aggregate_iqm(x)])
+
+    bootstrap = SeededStratifiedBootstrap(matrix, seed=np.random.default_rng(seed))
+    interval = bootstrap.conf_int(iqm, reps=reps, size=confidence, method="percentile")
+    return float(iqm(matrix)[0]), float(interval[0, 0]), float(interval[1, 0])
 
 
 def _summarise(values: np.ndarray, min_runs_for_iqm: int, confidence: float, reps: int, seed: int) -> tuple:

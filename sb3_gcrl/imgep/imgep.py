@@ -28,18 +28,24 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.utils import safe_mean
 from stable_baselines3.common.vec_env import DummyVecEnv
 
+from sb3_gcrl.common.metrics import coverage, visitation_entropy
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.goals.goal_space import BinnedGoalSpace
 from sb3_gcrl.imgep.policies import TabularGoalPolicy
 from sb3_gcrl.imgep.tabular_goal_env import TabularGoalEnv
-from sb3_gcrl.post_exploration.metrics import coverage, visitation_entropy
+from sb3_gcrl.post_exploration.evaluation import recreate_env
+from sb3_gcrl.post_exploration.interface import GoalExplorationAgent
 from sb3_gcrl.post_exploration.rules import PostExplorationRule, ProportionalSteps, make_post_exploration_rule
 
 SelfTabularIMGEP = TypeVar("SelfTabularIMGEP", bound="TabularIMGEP")
 
 
-class TabularIMGEP(ModelFileMixin, BaseAlgorithm):
+class TabularIMGEP(ModelFileMixin, BaseAlgorithm, GoalExplorationAgent):
     """Goal-conditioned tabular Q-learning in an IMGEP loop, with optional post-exploration (Algorithm 3).
+
+    The agent keeps its goal space and visit counts itself, so it implements
+    :class:`~sb3_gcrl.post_exploration.interface.GoalExplorationAgent` (:meth:`visitation_entropy`,
+    :meth:`coverage`, :meth:`make_all_goals_env`) for :class:`~sb3_gcrl.post_exploration.AllGoalsEvalCallback`.
 
     :param policy: ``"TabularGoalPolicy"`` or ``"MultiInputPolicy"`` (the same; or the class).
     :param env: a tabular env (Discrete observation and actions, e.g. ``"GCRL/FourRoomsTabular-v0"``) or a
@@ -422,6 +428,14 @@ class TabularIMGEP(ModelFileMixin, BaseAlgorithm):
         mask = np.zeros(self.goal_space.n_cells, dtype=bool)
         mask[self.goal_env.reachable_goals] = True
         return coverage(self.goal_space.counts, mask)
+
+    def make_all_goals_env(self) -> TabularGoalEnv:
+        """A new :class:`TabularGoalEnv` on the registered env the agent learns in (its id and constructor kwargs,
+        e.g. a MiniGrid layout seed), for the all-goals evaluation (Sec. 6.5.1).
+
+        :raises ValueError: when the env was not made by ``gym.make`` (pass the evaluation env explicitly then).
+        """
+        return TabularGoalEnv(recreate_env(self.goal_env.unwrapped.spec, base_only=True))
 
     def dump_logs(self) -> None:
         """Write the IMGEP's log data (SB3's public hook): episodes, success, goal space, post-exploration."""

@@ -62,10 +62,6 @@ class TabularGoalPolicy(BasePolicy):
         """Numpy view of the table (writes go to the saved buffer)."""
         return self.q_table.numpy()
 
-    def greedy_action(self, state: int, goal: int) -> int:
-        """Lowest-index argmax of ``Q[state, goal]``."""
-        return int(self.q[state, goal].argmax())
-
     def predict(
         self,
         observation: np.ndarray | dict[str, np.ndarray],

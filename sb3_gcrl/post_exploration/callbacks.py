@@ -6,7 +6,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_gcrl.callbacks.segments import GoalSuccessLog
-from sb3_gcrl.post_exploration.metrics import coverage, visitation_entropy
+from sb3_gcrl.post_exploration.metrics import coverage, training_visit_counts, visitation_entropy
 from sb3_gcrl.wrappers.mode import switch_training_envs
 
 
@@ -81,9 +81,8 @@ class PostExplorationCallback(BaseCallback):
         episodes = sum(env.get_attr("episodes"))
         self.logger.record("post_exploration/steps", sum(env.get_attr("post_exploration_steps")))
         self.logger.record("post_exploration/goals_reached_rate", sum(env.get_attr("goals_reached")) / max(episodes, 1))
-        spaces = [space for space in env.get_attr("goal_space") if space is not None]
-        if spaces:
-            counts = np.sum([space.counts for space in spaces], axis=0)
+        counts = training_visit_counts(env)
+        if counts is not None:
             self.logger.record("post_exploration/goal_space_size", int(np.count_nonzero(counts)))
             self.logger.record("post_exploration/visitation_entropy", visitation_entropy(counts))
             self.logger.record("post_exploration/coverage", coverage(counts))

@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -23,6 +22,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_gcrl.post_exploration.interface import GoalExplorationAgent
 from sb3_gcrl.post_exploration.metrics import coverage, training_visit_counts, visitation_entropy
 
 #: columns of an all-goals evaluation row (:attr:`AllGoalsEvalCallback.records`; ``all_goals.csv`` of a comparison)
@@ -50,35 +50,34 @@ def evaluate_all_goals(
         says whether it was reached (e.g. :class:`~sb3_gcrl.imgep.TabularGoalEnv` with ``terminate_at_goal``).
     :param goals: goals to test (default: ``env.reachable_goals``).
     :param max_steps: step cap per goal (default: the env's time limit ends the episode).
-    :param stop_on_loop: stop a goal as failed as soon as the greedy policy revisits an observation. Exact for
-        deterministic envs and policies (the tabular MiniGrid tasks): the agent is then in a cycle. Only used for
-        Discrete observations.
+    :param stop_on_loop: stop a goal as failed as soon as the greedy policy revisits an observation (Discrete
+        observations only). Exact for deterministic envs and policies (the tabular MiniGrid tasks): the agent is
+        then in a cycle; pass False for an env with random transitions.
     :return: boolean array, one entry per goal.
     """
     if goals is None:
-        goals = getattr(env.unwrapped if not hasattr(env, "reachable_goals") else env, "reachable_goals", None)
-        if goals is None:
-            raise ValueError("Pass goals=... (the env declares no reachable_goals)")
+        try:
+            goals = env.get_wrapper_attr("reachable_goals")
+        except AttributeError:
+            raise ValueError("Pass goals=... (the env declares no reachable_goals)") from None
     goals = np.asarray(goals)
-    tabular = isinstance(env.observation_space, gym.spaces.Dict) and isinstance(
-        env.observation_space["observation"], gym.spaces.Discrete
+    detect_loops = (
+        stop_on_loop
+        and isinstance(env.observation_space, gym.spaces.Dict)
+        and isinstance(env.observation_space["observation"], gym.spaces.Discrete)
     )
-    q = getattr(getattr(model, "policy", None), "q", None) if tabular else None
     success = np.zeros(len(goals), dtype=bool)
     for i, goal in enumerate(goals):
         obs, _ = env.reset(options={"goal": goal})
         seen: set[int] = set()
         steps = 0
         while True:
-            if q is not None:
+            if detect_loops:
                 state = int(obs["observation"])
-                if stop_on_loop:
-                    if state in seen:
-                        break
-                    seen.add(state)
-                action: Any = int(q[state, int(goal)].argmax())
-            else:
-                action, _ = model.predict(obs, deterministic=True)
+                if state in seen:
+                    break
+                seen.add(state)
+            action, _ = model.predict(obs, deterministic=True)
             obs, _, terminated, truncated, info = env.step(action)
             steps += 1
             if info.get("is_success", False):
@@ -129,7 +128,7 @@ GOAL_GRIDS: dict[str, Callable[[gym.Env], np.ndarray]] = {
 }
 
 
-def recreate_env(env_spec: gym.envs.registration.EnvSpec, base_only: bool = False) -> gym.Env:
+def recreate_env(env_spec: gym.envs.registration.EnvSpec | None, base_only: bool = False) -> gym.Env:
     """A fresh copy of an env from the spec of a built one: its id, constructor kwargs and the wrappers that
     record their constructor arguments (``env_wrapper`` of an RL-Zoo config); the others (SB3's ``Monitor``, which
     RL-Zoo puts below ``env_wrapper``) cannot be rebuilt and are left out.
@@ -137,7 +136,13 @@ def recreate_env(env_spec: gym.envs.registration.EnvSpec, base_only: bool = Fals
     :param env_spec: ``env.spec`` of the built env (gymnasium lists its wrappers in ``additional_wrappers``).
     :param base_only: build the registered env only (no additional wrapper).
     :return: the new env.
+    :raises ValueError: for an env without a spec (not made by ``gym.make``), naming ``eval_env=...``.
     """
+    if env_spec is None:
+        raise ValueError(
+            "AllGoalsEvalCallback: the training env has no spec (not made by gym.make), so no evaluation env "
+            "can be built from it; pass eval_env=..."
+        )
     wrappers = () if base_only else tuple(w for w in env_spec.additional_wrappers if w.kwargs is not None)
     return gym.make(replace(env_spec, additional_wrappers=wrappers))
 
@@ -149,14 +154,17 @@ class AllGoalsEvalCallback(BaseCallback):
     when the training data has visit counts) and kept as a row of :attr:`records` (columns
     :data:`ALL_GOALS_COLUMNS`; ``timesteps`` is the scheduled step ``k * eval_freq``, ``num_timesteps`` the step
     at which it ran), as in :attr:`timesteps` / :attr:`success_rates` / :attr:`per_goal` (per goal), for the
-    curves of Fig. 6.3 / 6.5. The visitation entropy (Eq. 6.7) and coverage are those of the agent's goal space
-    (:class:`~sb3_gcrl.imgep.TabularIMGEP`: reachable cells) or of the training envs'
+    curves of Fig. 6.3 / 6.5. The visitation entropy (Eq. 6.7) and coverage are those of the agent's own goal
+    space when it is a :class:`~sb3_gcrl.post_exploration.interface.GoalExplorationAgent`
+    (:class:`~sb3_gcrl.imgep.TabularIMGEP`: reachable cells), else those of the training envs'
     :class:`~sb3_gcrl.post_exploration.PostExplorationWrapper` bins (all bins of the goal box); NaN without either.
 
     :param eval_env: separate goal env for evaluation (see :func:`evaluate_all_goals`). None: built at the start
-        of training from the training env's spec: ``TabularGoalEnv(gym.make(env_id, **kwargs))`` for a
-        :class:`~sb3_gcrl.imgep.TabularIMGEP`, else the env with the wrappers of the training env that record
-        their constructor arguments (the ``env_wrapper`` of an RL-Zoo config, left in episodic mode).
+        of training: the agent's ``make_all_goals_env()`` for a
+        :class:`~sb3_gcrl.post_exploration.interface.GoalExplorationAgent` (``TabularGoalEnv(gym.make(env_id,
+        **kwargs))`` for a :class:`~sb3_gcrl.imgep.TabularIMGEP`), else the training env rebuilt from its spec with
+        the wrappers that record their constructor arguments (the ``env_wrapper`` of an RL-Zoo config, left in
+        episodic mode).
     :param eval_freq: evaluate every this many training env steps (at the first step at or past each multiple,
         so any ``n_envs`` works), at the start and at the end of training. ``sb3-gcrl compare`` sets it to the
         run's ``eval_freq`` so that the rows line up with ``evaluations.csv``.
@@ -195,22 +203,9 @@ class AllGoalsEvalCallback(BaseCallback):
 
     def _build_eval_env(self) -> gym.Env:
         """The evaluation env when none was given (see ``eval_env``)."""
-        from sb3_gcrl.imgep import TabularGoalEnv
-
-        goal_env = getattr(self.model, "goal_env", None)
-        if isinstance(goal_env, TabularGoalEnv):
-            env_spec = goal_env.unwrapped.spec
-            base_only = True
-        else:
-            env_spec = self.training_env.get_attr("spec", indices=[0])[0]
-            base_only = False
-        if env_spec is None:
-            raise ValueError(
-                "AllGoalsEvalCallback: the training env has no spec (not made by gym.make), so no evaluation env "
-                "can be built from it; pass eval_env=..."
-            )
-        env = recreate_env(env_spec, base_only)
-        return TabularGoalEnv(env) if base_only else env
+        if isinstance(self.model, GoalExplorationAgent):
+            return self.model.make_all_goals_env()
+        return recreate_env(self.training_env.get_attr("spec", indices=[0])[0])
 
     def _evaluate(self) -> None:
         if self._last_eval == self.num_timesteps:
@@ -245,8 +240,8 @@ class AllGoalsEvalCallback(BaseCallback):
 
     def _visit_statistics(self) -> tuple[float, float]:
         """Visitation entropy (Eq. 6.7) and coverage of the training data so far (NaN, NaN when not counted)."""
-        if getattr(self.model, "goal_space", None) is not None and hasattr(self.model, "coverage"):
-            return float(self.model.visitation_entropy()), float(self.model.coverage())  # type: ignore[attr-defined]
+        if isinstance(self.model, GoalExplorationAgent):
+            return float(self.model.visitation_entropy()), float(self.model.coverage())
         counts = training_visit_counts(self.training_env) if isinstance(self.training_env, VecEnv) else None
         if counts is None:
             return math.nan, math.nan
