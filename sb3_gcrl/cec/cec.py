@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import numpy as np
-import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
@@ -14,7 +12,6 @@ from stable_baselines3.common.type_aliases import GymEnv
 from sb3_gcrl.cec.policies import CECPolicy
 from sb3_gcrl.common.episodic_control import EpisodicControlAlgorithm
 from sb3_gcrl.common.validation import check_float, check_int
-from sb3_gcrl.memory.knn import KNNBackend
 
 
 class CEC(EpisodicControlAlgorithm):
@@ -43,23 +40,15 @@ class CEC(EpisodicControlAlgorithm):
     :param n_neighbors: ``k``: neighbours considered for action selection.
     :param temperature: ``tau`` of the softmax in Eq. 4.5 (> 0).
     :param noise_std: ``sigma``: std of the Gaussian exploration noise, in action units.
-    :param gamma: discount of the Monte-Carlo returns (Algorithm 1).
     :param exploration_initial_eps: initial probability epsilon of adding noise (authors: 0.9).
     :param exploration_final_eps: final epsilon (authors: 0.05).
     :param exploration_fraction: fraction of the budget over which epsilon decays linearly. The thesis
         keeps epsilon fixed and does not give it; the authors' code decays it linearly 0.9 -> 0.05.
     :param projection_dim: Gaussian random projection of the key to this many dims (thesis: 8 for
         FetchReach), ``None`` for the raw (concatenated) observation.
-    :param observation_keys: Dict observation keys that form the key, in order.
-    :param knn_backend: ``"auto"``, ``"kdtree"`` or ``"flat"`` (see :class:`~sb3_gcrl.memory.KNNIndex`).
-    :param rebuild_threshold: KD-tree rebuild threshold (``None``: automatic).
-    :param stats_window_size: episodes averaged in the rollout logs.
-    :param tensorboard_log: tensorboard log folder.
-    :param policy_kwargs: extra policy arguments (override the ones above).
-    :param verbose: 0 silent, 1 info.
-    :param seed: seed (projection matrix, action sampling, envs).
-    :param device: unused (numpy on CPU); kept for the SB3 API.
-    :param _init_setup_model: build the policy at construction.
+    :param kwargs: the other :class:`~sb3_gcrl.common.EpisodicControlAlgorithm` arguments (``gamma``: discount of
+        the Monte-Carlo returns of Algorithm 1, ``observation_keys``, ``knn_backend``, ``rebuild_threshold``,
+        ``policy_kwargs``, ``seed``, ``verbose``, ...).
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -79,21 +68,11 @@ class CEC(EpisodicControlAlgorithm):
         n_neighbors: int = 5,
         temperature: float = 0.1,
         noise_std: float = 0.3,
-        gamma: float = 0.99,
         exploration_initial_eps: float = 0.9,
         exploration_final_eps: float = 0.05,
         exploration_fraction: float = 0.5,
         projection_dim: int | None = None,
-        observation_keys: Sequence[str] | None = None,
-        knn_backend: KNNBackend = "auto",
-        rebuild_threshold: int | None = None,
-        stats_window_size: int = 100,
-        tensorboard_log: str | None = None,
-        policy_kwargs: dict[str, Any] | None = None,
-        verbose: int = 0,
-        seed: int | None = None,
-        device: th.device | str = "cpu",
-        _init_setup_model: bool = True,
+        **kwargs: Any,
     ) -> None:
         self.capacity = check_int("capacity", capacity)
         self.distance_threshold = check_float("distance_threshold (d)", distance_threshold, 0.0, exclusive_minimum=True)
@@ -102,23 +81,7 @@ class CEC(EpisodicControlAlgorithm):
         self.temperature = check_float("temperature (tau)", temperature, 0.0, exclusive_minimum=True)
         self.noise_std = check_float("noise_std (sigma)", noise_std, 0.0)
         super().__init__(
-            policy,
-            env,
-            gamma=gamma,
-            exploration_initial_eps=exploration_initial_eps,
-            exploration_final_eps=exploration_final_eps,
-            exploration_fraction=exploration_fraction,
-            projection_dim=projection_dim,
-            observation_keys=observation_keys,
-            knn_backend=knn_backend,
-            rebuild_threshold=rebuild_threshold,
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            policy_kwargs=policy_kwargs,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=_init_setup_model,
+            policy, env, exploration_initial_eps, exploration_final_eps, exploration_fraction, projection_dim, **kwargs
         )
 
     def _check_spaces(self, observation_space: spaces.Space, action_space: spaces.Space) -> None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -13,7 +12,6 @@ from sb3_gcrl.common.episodic_control import EpisodicControlPolicy
 from sb3_gcrl.common.saving import refuse_learning_rate_schedule
 from sb3_gcrl.common.validation import check_float
 from sb3_gcrl.memory.cec_memory import CECMemory
-from sb3_gcrl.memory.knn import KNNBackend
 
 
 class CECPolicy(EpisodicControlPolicy):
@@ -34,11 +32,8 @@ class CECPolicy(EpisodicControlPolicy):
     :param n_neighbors: ``k`` (Table 4.4).
     :param temperature: ``tau`` (Table 4.4, Eq. 4.5).
     :param noise_std: ``sigma`` (Table 4.4), in action units.
-    :param knn_backend: kNN backend (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
-    :param rebuild_threshold: KD-tree rebuild threshold (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
-    :param projection_dim: random-projection dimension (``None``: raw observations).
-    :param observation_keys: Dict observation keys forming the key.
-    :param seed: seed of the projection and of action sampling.
+    :param kwargs: the :class:`~sb3_gcrl.common.EpisodicControlPolicy` arguments (``projection_dim``,
+        ``observation_keys``, ``seed``, ``knn_backend``, ``rebuild_threshold``).
     :raises TypeError: naming ``CEC.load`` when SB3's own ``load`` (``SAC.load``) builds this policy from a CEC
         model file (it passes a learning-rate schedule third).
     """
@@ -55,16 +50,10 @@ class CECPolicy(EpisodicControlPolicy):
         n_neighbors: int = 5,
         temperature: float = 0.1,
         noise_std: float = 0.3,
-        knn_backend: KNNBackend = "auto",
-        rebuild_threshold: int | None = None,
-        projection_dim: int | None = None,
-        observation_keys: Sequence[str] | None = None,
-        seed: int | None = None,
+        **kwargs: Any,
     ) -> None:
         refuse_learning_rate_schedule(type(self).__name__, "capacity", capacity, "CEC")
-        super().__init__(
-            observation_space, action_space, projection_dim, observation_keys, seed, knn_backend, rebuild_threshold
-        )
+        super().__init__(observation_space, action_space, **kwargs)
         self.noise_std = check_float("noise_std (sigma)", noise_std, 0.0)
         self.memory = CECMemory(
             key_dim=self.embedding.key_dim,
@@ -74,8 +63,8 @@ class CECPolicy(EpisodicControlPolicy):
             filter_factor=filter_factor,
             n_neighbors=n_neighbors,
             temperature=temperature,
-            knn_backend=knn_backend,
-            rebuild_threshold=rebuild_threshold,
+            knn_backend=self.knn_backend,
+            rebuild_threshold=self.rebuild_threshold,
         )
         self._low = action_space.low.astype(np.float32).reshape(-1)
         self._high = action_space.high.astype(np.float32).reshape(-1)

@@ -1,4 +1,5 @@
-"""Base classes and building blocks shared by the episodic-control algorithms (CEC, MFEC) and the 2M agents.
+"""Building blocks shared across the package: the base classes of the episodic-control algorithms (CEC, MFEC)
+and the 2M agents, model files, argument checks and exploration metrics.
 
 * :mod:`sb3_gcrl.common.episodic_control` — :class:`EpisodicControlPolicy`, :class:`EpisodicControlAlgorithm`
   (SB3 base classes of CEC and MFEC), :func:`memory_state` / :func:`load_memory_state` (an episodic memory in a
@@ -8,28 +9,42 @@
   records the class, ``load`` that checks the file first and raises :class:`ModelFileError` naming the fix) and
   the atomic writes (:func:`atomic_file`).
 
-The memories themselves (data structures) are in :mod:`sb3_gcrl.memory`.
+* :mod:`sb3_gcrl.common.validation` — the package's argument checks (``check_int``, ``check_float``, ...).
+* :mod:`sb3_gcrl.common.metrics` — exploration metrics of Ch. 6 (:func:`visitation_entropy`, :func:`coverage`).
+
+The memories themselves (data structures) are in :mod:`sb3_gcrl.memory`. The names above are imported on first
+access, so that the light modules import without torch.
 """
 
-from sb3_gcrl.common.actors import cec_actions, mfec_actions
-from sb3_gcrl.common.episodic_control import (
-    EpisodicControlAlgorithm,
-    EpisodicControlPolicy,
-    MemoryRestoreError,
-    load_memory_state,
-    memory_state,
-)
-from sb3_gcrl.common.saving import ModelFileError, ModelFileMixin, atomic_file
+from __future__ import annotations
 
-__all__ = [
-    "EpisodicControlAlgorithm",
-    "EpisodicControlPolicy",
-    "MemoryRestoreError",
-    "ModelFileError",
-    "ModelFileMixin",
-    "atomic_file",
-    "cec_actions",
-    "load_memory_state",
-    "memory_state",
-    "mfec_actions",
-]
+import importlib
+from typing import Any
+
+#: exported name -> the module that defines it, imported on first access: the light modules (validation,
+#: metrics) are used by the envs, which ``import sb3_gcrl`` registers without importing torch
+_EXPORTS: dict[str, str] = {
+    "EpisodicControlAlgorithm": "episodic_control",
+    "EpisodicControlPolicy": "episodic_control",
+    "MemoryRestoreError": "episodic_control",
+    "load_memory_state": "episodic_control",
+    "memory_state": "episodic_control",
+    "cec_actions": "actors",
+    "mfec_actions": "actors",
+    "ModelFileError": "saving",
+    "ModelFileMixin": "saving",
+    "atomic_file": "saving",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    """An exported name, imported from its module on first access.
+
+    :param name: the attribute.
+    :return: its value.
+    """
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)

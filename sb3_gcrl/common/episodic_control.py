@@ -207,15 +207,16 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
     """Learn loop of episodic control: act with the memory, update it after every finished episode.
 
     Subclasses set ``policy_aliases`` and implement :meth:`_policy_memory_kwargs`,
-    :meth:`_check_spaces` and :meth:`_update_memory`.
+    :meth:`_check_spaces` and :meth:`_update_memory`. The first parameters after ``env`` are the ones whose
+    defaults differ between the algorithms (each states its own, the authors' values, and passes them on in order).
 
     :param policy: policy class or alias.
     :param env: env, VecEnv or registered env id; any number of envs.
-    :param gamma: discount factor of the stored Monte-Carlo returns.
     :param exploration_initial_eps: initial exploration probability epsilon.
     :param exploration_final_eps: final epsilon.
     :param exploration_fraction: fraction of the training budget over which epsilon decays linearly.
     :param projection_dim: random-projection dimension of the keys (``None``: raw observations).
+    :param gamma: discount factor of the stored Monte-Carlo returns.
     :param observation_keys: Dict observation keys concatenated into the key, in order.
     :param knn_backend: ``"auto"``, ``"kdtree"`` or ``"flat"`` (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
     :param rebuild_threshold: KD-tree rebuild threshold (``None``: automatic).
@@ -236,11 +237,11 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
         self,
         policy: str | type[EpisodicControlPolicy],
         env: GymEnv | str,
-        gamma: float = 0.99,
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.05,
         exploration_fraction: float = 0.1,
         projection_dim: int | None = None,
+        gamma: float = 0.99,
         observation_keys: Sequence[str] | None = None,
         knn_backend: KNNBackend = "auto",
         rebuild_threshold: int | None = None,

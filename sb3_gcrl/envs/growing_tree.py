@@ -32,6 +32,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sb3_gcrl.common.validation import check_choice
+
 HEIGHT_LIMIT = 2.0
 MAX_ACTION = 0.1
 # Exact-arithmetic boundary cases (e.g. nine actions of 0.1 from 0) count as "not reached".
@@ -70,8 +72,7 @@ class GrowingTreeEnv(gym.Env):
                 raise ValueError(f"{name} must lie in [-2, 2], got {value}.")
         if tolerance <= _BOUNDARY_MARGIN:
             raise ValueError(f"tolerance must be positive (> {_BOUNDARY_MARGIN}), got {tolerance}.")
-        if render_mode not in (None, *self.metadata["render_modes"]):
-            raise ValueError(f"render_mode must be None, 'ansi' or 'rgb_array', got {render_mode!r}.")
+        check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
         self.goal = float(goal)
         self.tolerance = float(tolerance)
         self.start_height = float(start_height)

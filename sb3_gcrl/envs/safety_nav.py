@@ -56,6 +56,8 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from sb3_gcrl.common.validation import check_choice
+
 _RESET_OPTIONS = ("reset_pos", "goal", "heading")
 
 # Shared scene: an (infinite) floor plane, a visual goal zone (no collisions), an overhead camera.
@@ -247,8 +249,7 @@ class SafetyGoalEnv(gym.Env):
         for name, value in (("lidar_num_bins", lidar_num_bins), ("frame_skip", frame_skip)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}.")
-        if render_mode not in (None, *self.metadata["render_modes"]):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}.")
+        check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
         self.robot = robot
         self.start_xy = _xy(start_xy, "start_xy")
         self.goal_xy = _xy(goal_xy, "goal_xy")

@@ -42,6 +42,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sb3_gcrl.common.validation import check_choice
+
 N_ROWS = 7
 N_COLS = 10
 START_CELL = (3, 0)
@@ -88,8 +90,7 @@ class WindyGridEnv(gym.Env[np.int64, np.int64]):
     ) -> None:
         if not 0.0 <= wind_probability <= 1.0:
             raise ValueError(f"wind_probability must lie in [0, 1], got {wind_probability}.")
-        if render_mode not in (None, *self.metadata["render_modes"]):
-            raise ValueError(f"render_mode must be None, 'ansi' or 'rgb_array', got {render_mode!r}.")
+        check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
         self.wind_probability = float(wind_probability)
         self.trap_reward = float(trap_reward)
         self.step_reward = float(step_reward)

@@ -13,6 +13,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import PyTorchObs
 
 
 class TabularGoalPolicy(BasePolicy):
@@ -62,20 +63,11 @@ class TabularGoalPolicy(BasePolicy):
         """Numpy view of the table (writes go to the saved buffer)."""
         return self.q_table.numpy()
 
-    def predict(
-        self,
-        observation: np.ndarray | dict[str, np.ndarray],
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = False,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict`` on goal-conditioned (Dict) observations.
+    def obs_to_tensor(self, observation: np.ndarray | dict[str, np.ndarray]) -> tuple[PyTorchObs, bool]:
+        """SB3's conversion of ``predict``'s observation, for goal-conditioned (Dict) observations only.
 
         :param observation: a Dict observation (``observation`` and ``desired_goal``) or a batch of them.
-        :param state: unused (no recurrent state).
-        :param episode_start: unused.
-        :param deterministic: unused (the greedy policy is deterministic).
-        :return: the action(s) and ``state``.
+        :return: the tensors and whether the observation was a batch.
         :raises ValueError: for an observation that is not a Dict (a bare state of the plain env has no goal: the
             model's ``predict`` commands the env's task goal for it).
         """
@@ -85,7 +77,7 @@ class TabularGoalPolicy(BasePolicy):
                 f"'desired_goal': g}}, got {type(observation).__name__} {observation!r}. For a bare state of the "
                 "plain tabular env, use the model's predict (TabularIMGEP.predict commands the env's own task goal)"
             )
-        return super().predict(observation, state, episode_start, deterministic)
+        return super().obs_to_tensor(observation)
 
     def _predict(self, observation: dict[str, th.Tensor], deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
         states = observation["observation"].long().reshape(-1)

@@ -20,6 +20,7 @@ from gymnasium import spaces
 from stable_baselines3.common.env_util import unwrap_wrapper
 
 from sb3_gcrl.envs.minigrid_tabular import N_DIRECTIONS, TabularMiniGridObservation
+from sb3_gcrl.wrappers.goal_env import record_constructor_args
 
 
 def minigrid_reachable_cells(env: gym.Env) -> np.ndarray:
@@ -105,14 +106,7 @@ class TabularGoalEnv(gym.Wrapper, gym.utils.RecordConstructorArgs):
             )
         if not isinstance(env.action_space, spaces.Discrete):
             raise TypeError(f"TabularGoalEnv needs a Discrete action space, got {env.action_space}")
-        gym.utils.RecordConstructorArgs.__init__(
-            self,
-            goal_of_state=goal_of_state,
-            n_goals=n_goals,
-            reachable_goals=reachable_goals,
-            terminate_at_goal=terminate_at_goal,
-            task_goal=task_goal,
-        )
+        record_constructor_args(self, locals())
         gym.Wrapper.__init__(self, env)
         n_states = int(env.observation_space.n)
         minigrid = unwrap_wrapper(env, TabularMiniGridObservation)

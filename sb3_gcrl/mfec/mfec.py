@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import numpy as np
-import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_gcrl.common.episodic_control import EpisodicControlAlgorithm
 from sb3_gcrl.common.validation import check_int
-from sb3_gcrl.memory.knn import KNNBackend
 from sb3_gcrl.mfec.policies import MFECPolicy
 
 
@@ -33,22 +30,14 @@ class MFEC(EpisodicControlAlgorithm):
     :param env: env with a ``Discrete`` action space (any number of envs), or its registered id.
     :param capacity_per_action: rows per action table (2M code: ``1e5 / (2 * n_actions)``; MFEC paper: 1e6).
     :param n_neighbors: ``k`` of the kNN estimate (2M code: 3).
-    :param gamma: discount of the Monte-Carlo returns.
     :param exploration_initial_eps: initial epsilon.
     :param exploration_final_eps: final epsilon.
     :param exploration_fraction: fraction of the budget over which epsilon decays linearly.
     :param projection_dim: Gaussian random projection dimension, ``None`` for raw observations
         (fine for small tabular/discrete observations such as WindyGrid).
-    :param observation_keys: Dict observation keys that form the key, in order.
-    :param knn_backend: ``"auto"``, ``"kdtree"`` or ``"flat"``.
-    :param rebuild_threshold: KD-tree rebuild threshold (``None``: automatic).
-    :param stats_window_size: episodes averaged in the rollout logs.
-    :param tensorboard_log: tensorboard log folder.
-    :param policy_kwargs: extra policy arguments (override the ones above).
-    :param verbose: 0 silent, 1 info.
-    :param seed: seed (projection matrix, action sampling, envs).
-    :param device: unused (numpy on CPU); kept for the SB3 API.
-    :param _init_setup_model: build the policy at construction.
+    :param kwargs: the other :class:`~sb3_gcrl.common.EpisodicControlAlgorithm` arguments (``gamma``: discount of
+        the Monte-Carlo returns, ``observation_keys``, ``knn_backend``, ``rebuild_threshold``, ``policy_kwargs``,
+        ``seed``, ``verbose``, ...).
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -64,42 +53,16 @@ class MFEC(EpisodicControlAlgorithm):
         env: GymEnv | str,
         capacity_per_action: int = 100_000,
         n_neighbors: int = 3,
-        gamma: float = 0.99,
         exploration_initial_eps: float = 0.1,
         exploration_final_eps: float = 0.005,
         exploration_fraction: float = 0.1,
         projection_dim: int | None = 8,
-        observation_keys: Sequence[str] | None = None,
-        knn_backend: KNNBackend = "auto",
-        rebuild_threshold: int | None = None,
-        stats_window_size: int = 100,
-        tensorboard_log: str | None = None,
-        policy_kwargs: dict[str, Any] | None = None,
-        verbose: int = 0,
-        seed: int | None = None,
-        device: th.device | str = "cpu",
-        _init_setup_model: bool = True,
+        **kwargs: Any,
     ) -> None:
         self.capacity_per_action = check_int("capacity_per_action", capacity_per_action)
         self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
         super().__init__(
-            policy,
-            env,
-            gamma=gamma,
-            exploration_initial_eps=exploration_initial_eps,
-            exploration_final_eps=exploration_final_eps,
-            exploration_fraction=exploration_fraction,
-            projection_dim=projection_dim,
-            observation_keys=observation_keys,
-            knn_backend=knn_backend,
-            rebuild_threshold=rebuild_threshold,
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            policy_kwargs=policy_kwargs,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=_init_setup_model,
+            policy, env, exploration_initial_eps, exploration_final_eps, exploration_fraction, projection_dim, **kwargs
         )
 
     def _check_spaces(self, observation_space: spaces.Space, action_space: spaces.Space) -> None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -11,7 +10,6 @@ from gymnasium import spaces
 from sb3_gcrl.common.actors import mfec_actions
 from sb3_gcrl.common.episodic_control import EpisodicControlPolicy
 from sb3_gcrl.common.saving import refuse_learning_rate_schedule
-from sb3_gcrl.memory.knn import KNNBackend
 from sb3_gcrl.memory.mfec_memory import MFECMemory
 
 
@@ -27,11 +25,8 @@ class MFECPolicy(EpisodicControlPolicy):
     :param action_space: ``Discrete`` action space.
     :param capacity_per_action: rows per action table.
     :param n_neighbors: ``k`` of the kNN estimate.
-    :param knn_backend: kNN backend (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
-    :param rebuild_threshold: KD-tree rebuild threshold.
-    :param projection_dim: random-projection dimension (``None``: raw observations).
-    :param observation_keys: Dict observation keys forming the key.
-    :param seed: seed of the projection and of action sampling.
+    :param kwargs: the :class:`~sb3_gcrl.common.EpisodicControlPolicy` arguments (``projection_dim``,
+        ``observation_keys``, ``seed``, ``knn_backend``, ``rebuild_threshold``).
     :raises TypeError: naming ``MFEC.load`` when SB3's own ``load`` (``SAC.load``) builds this policy from a MFEC
         model file (it passes a learning-rate schedule third).
     """
@@ -44,23 +39,17 @@ class MFECPolicy(EpisodicControlPolicy):
         action_space: spaces.Discrete,
         capacity_per_action: int = 100_000,
         n_neighbors: int = 3,
-        knn_backend: KNNBackend = "auto",
-        rebuild_threshold: int | None = None,
-        projection_dim: int | None = 8,
-        observation_keys: Sequence[str] | None = None,
-        seed: int | None = None,
+        **kwargs: Any,
     ) -> None:
         refuse_learning_rate_schedule(type(self).__name__, "capacity_per_action", capacity_per_action, "MFEC")
-        super().__init__(
-            observation_space, action_space, projection_dim, observation_keys, seed, knn_backend, rebuild_threshold
-        )
+        super().__init__(observation_space, action_space, **kwargs)
         self.memory = MFECMemory(
             key_dim=self.embedding.key_dim,
             n_actions=int(action_space.n),
             capacity_per_action=capacity_per_action,
             n_neighbors=n_neighbors,
-            knn_backend=knn_backend,
-            rebuild_threshold=rebuild_threshold,
+            knn_backend=self.knn_backend,
+            rebuild_threshold=self.rebuild_threshold,
         )
         #: ``action_space.start``: env actions are ``start + a`` for the table index ``a``
         self.action_start = int(action_space.start)

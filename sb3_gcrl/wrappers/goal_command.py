@@ -30,7 +30,7 @@ from stable_baselines3.common.env_util import unwrap_wrapper
 from sb3_gcrl.common.validation import check_finite_rewards
 from sb3_gcrl.goals.schedulers import GoalScheduler, make_scheduler
 from sb3_gcrl.goals.task_goals import GoalKind, TaskRelevantGoals
-from sb3_gcrl.wrappers.goal_env import check_goal_env
+from sb3_gcrl.wrappers.goal_env import check_goal_env, record_constructor_args
 from sb3_gcrl.wrappers.mode import TrainingModeMixin
 
 
@@ -74,13 +74,7 @@ class GoalCommandWrapper(
         task_goal_capacity: int = 10_000,
     ) -> None:
         check_goal_env(env, type(self).__name__)
-        gym.utils.RecordConstructorArgs.__init__(
-            self,
-            scheduler=scheduler,
-            scheduler_kwargs=scheduler_kwargs,
-            success_distance=success_distance,
-            task_goal_capacity=task_goal_capacity,
-        )
+        record_constructor_args(self, locals())
         super().__init__(env)
         goal_space = env.observation_space["desired_goal"]
         self._goal_shape = goal_space.shape

@@ -1,4 +1,5 @@
-"""Goal-env checks shared by the wrappers, and an ``info["is_success"]`` adapter.
+"""Helpers shared by the wrappers (goal-env checks, the record of constructor arguments), and an
+``info["is_success"]`` adapter.
 
 Goal envs follow gymnasium-robotics: a Dict observation with ``observation``,
 ``achieved_goal`` and ``desired_goal``, a vectorised ``compute_reward(achieved, desired, info)``, and
@@ -16,6 +17,20 @@ from stable_baselines3.common.env_util import unwrap_wrapper
 from stable_baselines3.common.monitor import Monitor
 
 GOAL_KEYS = ("observation", "achieved_goal", "desired_goal")
+
+
+def record_constructor_args(wrapper: gym.utils.RecordConstructorArgs, arguments: dict[str, Any]) -> None:
+    """Record a wrapper's constructor arguments, so that ``gym.make`` can rebuild it from an env's spec (gymnasium's
+    ``RecordConstructorArgs``; in a chain of subclasses the first record, the outermost class's, is kept).
+
+    Call it at the start of ``__init__`` with ``locals()``, before any other local exists: the arguments are then
+    the constructor's parameters (``self``, ``env`` and the ``__class__`` cell of ``super()`` left out).
+
+    :param wrapper: the wrapper being built.
+    :param arguments: ``locals()`` of its ``__init__``.
+    """
+    recorded = {name: value for name, value in arguments.items() if name not in ("self", "env", "__class__")}
+    gym.utils.RecordConstructorArgs.__init__(wrapper, **recorded)
 
 
 def check_goal_env(env: gym.Env, wrapper_name: str) -> None:
@@ -64,7 +79,7 @@ class IsSuccessWrapper(
 
     def __init__(self, env: gym.Env, source_key: str = "success", success_distance: float | None = None) -> None:
         check_goal_env(env, type(self).__name__)
-        gym.utils.RecordConstructorArgs.__init__(self, source_key=source_key, success_distance=success_distance)
+        record_constructor_args(self, locals())
         super().__init__(env)
         self.source_key = source_key
         self.success_distance = success_distance

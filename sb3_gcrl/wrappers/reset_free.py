@@ -27,6 +27,7 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 from gymnasium.wrappers import TimeLimit
 
+from sb3_gcrl.wrappers.goal_env import record_constructor_args
 from sb3_gcrl.wrappers.mode import TrainingModeMixin
 from sb3_gcrl.wrappers.segments import missing_info_keyword
 
@@ -55,9 +56,7 @@ class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstruct
         segment_length: int | None = None,
         eval_horizon: int | None = None,
     ) -> None:
-        gym.utils.RecordConstructorArgs.__init__(
-            self, hard_reset_every=hard_reset_every, segment_length=segment_length, eval_horizon=eval_horizon
-        )
+        record_constructor_args(self, locals())
         super().__init__(env)
         for name, value in (
             ("hard_reset_every", hard_reset_every),
