@@ -21,12 +21,11 @@ if TYPE_CHECKING:
     from sb3_gcrl.cec import CEC
     from sb3_gcrl.emac import EMAC
     from sb3_gcrl.her import ExecutedActionHerReplayBuffer, TaskRelevantHerReplayBuffer
-    from sb3_gcrl.ibc import IBC
     from sb3_gcrl.imgep import TabularIMGEP
     from sb3_gcrl.mfec import MFEC
     from sb3_gcrl.morefree import MoReFree
     from sb3_gcrl.post_exploration import PostExplorationCallback, PostExplorationWrapper
-    from sb3_gcrl.reset_free_baselines import MEDAL, R3L, ForwardBackwardWrapper
+    from sb3_gcrl.reset_free_baselines import IBC, MEDAL, R3L, ForwardBackwardWrapper
     from sb3_gcrl.tabular import TabularEpisodicControl, TabularQLearning, TabularTwoMemory
     from sb3_gcrl.two_memory import TwoMemoryDQN, TwoMemorySAC
     from sb3_gcrl.wrappers import GoalCommandWrapper, GoExploreWrapper, ResetFreeWrapper
@@ -39,7 +38,7 @@ _LAZY_EXPORTS: dict[str, str] = {
     "EMAC": "emac",
     "ExecutedActionHerReplayBuffer": "her",
     "TaskRelevantHerReplayBuffer": "her",
-    "IBC": "ibc",
+    "IBC": "reset_free_baselines",
     "TabularIMGEP": "imgep",
     "MFEC": "mfec",
     "MoReFree": "morefree",

@@ -25,7 +25,7 @@ ALGORITHMS["morefree"] = "sb3_gcrl.morefree:MoReFree"
 ALGORITHMS["emac"] = "sb3_gcrl.emac:EMAC"
 ALGORITHMS["medal"] = "sb3_gcrl.reset_free_baselines:MEDAL"
 ALGORITHMS["r3l"] = "sb3_gcrl.reset_free_baselines:R3L"
-ALGORITHMS["ibc"] = "sb3_gcrl.ibc:IBC"
+ALGORITHMS["ibc"] = "sb3_gcrl.reset_free_baselines:IBC"
 
 
 def load_algorithm(name: str) -> type[BaseAlgorithm]:

@@ -16,7 +16,7 @@ from test_contracts import assert_same_state
 
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
-from sb3_gcrl.ibc import IBC, IBCCurriculumScheduler, find_ibc_scheduler, ibc_go_explore
+from sb3_gcrl.reset_free_baselines import IBC, IBCCurriculumScheduler, find_ibc_scheduler, ibc_go_explore
 from sb3_gcrl.wrappers import GoExploreWrapper, ResetFreeWrapper
 
 ENV_ID = "GCRL/GrowingTreeGoal-v0"  # 1-D heights; rho_0 = 0, rho_g* = 1; actions change the height by <= 0.1
@@ -272,6 +272,29 @@ def test_errors_name_the_fix():
         ibc_go_explore(ResetFreeWrapper(gym.make(ENV_ID), eval_horizon=20), curriculum_kwargs={"success": near})
     with pytest.raises(ValueError, match="go_steps"):
         ibc_go_explore(gym.make(ENV_ID))
+
+
+def test_subprocess_envs_are_refused_and_the_old_module_path_is_a_deprecated_alias(monkeypatch: pytest.MonkeyPatch):
+    import importlib
+    import sys
+
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    env = make_vec_env(ENV_ID, n_envs=1, seed=0, wrapper_class=ibc_env, vec_env_cls=SubprocVecEnv)
+    try:
+        with pytest.raises(TypeError, match="DummyVecEnv"):  # the curriculum could not reach the critic there
+            IBC("MultiInputPolicy", env)
+    finally:
+        env.close()
+    for name in [m for m in sys.modules if m == "sb3_gcrl.ibc" or m.startswith("sb3_gcrl.ibc.")]:
+        monkeypatch.delitem(sys.modules, name)
+    with pytest.warns(DeprecationWarning, match="sb3_gcrl.reset_free_baselines"):
+        old = importlib.import_module("sb3_gcrl.ibc")
+    assert (old.IBC, old.IBCCurriculumScheduler, old.ibc_go_explore) == (IBC, IBCCurriculumScheduler, ibc_go_explore)
+    assert old.find_ibc_scheduler is find_ibc_scheduler and sb3_gcrl.IBC is IBC
+    # runs pickled before the move name the old modules
+    assert importlib.import_module("sb3_gcrl.ibc.curriculum").IBCCurriculumScheduler is IBCCurriculumScheduler
+    assert importlib.import_module("sb3_gcrl.ibc.ibc").IBC is IBC
 
 
 # ---------------------------------------------------------------------------------------------------------- configs

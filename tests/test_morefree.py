@@ -19,7 +19,7 @@ from torch.distributions import Normal
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
 from sb3_gcrl.morefree import MoReFree, SequenceReplayBuffer, morefree_go_explore
-from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler, find_agent_hooks
+from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler
 from sb3_gcrl.morefree.networks import (
     RSSM,
     DisagreementEnsemble,
@@ -29,10 +29,9 @@ from sb3_gcrl.morefree.networks import (
     WorldModel,
     frozen,
     lambda_returns,
-    symexp,
     symlog,
 )
-from sb3_gcrl.wrappers import ResetFreeWrapper
+from sb3_gcrl.wrappers import GOAL_REQUEST_KEY, GoExploreWrapper, ResetFreeWrapper
 
 TINY = MOREFREE_TINY_NET
 TINY_ALGO = {
@@ -51,6 +50,42 @@ TINY_ALGO = {
 
 def tiny(env: Any, seed: int = 0, **overrides: Any) -> MoReFree:
     return MoReFree("MultiInputPolicy", env, seed=seed, **{**TINY_ALGO, **overrides})
+
+
+def symexp(x: th.Tensor) -> th.Tensor:
+    """Inverse of :func:`symlog`."""
+    return th.sign(x) * th.expm1(th.abs(x))
+
+
+class ExplorerCheck(BaseCallback):
+    """Checks, at every step, that the env executed the agent's action in each Explore-phase step and that the agent
+    chose it as an Explore-phase action (pi_E once learning started); counts those steps after learning starts."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.phases: list[str] = []
+        self.explore_steps = 0
+        self.explorer_steps = 0
+
+    def _on_training_start(self) -> None:
+        read = self.model._phases
+
+        def recorded() -> list[str]:
+            self.phases = read()
+            return self.phases
+
+        self.model._phases = recorded  # type: ignore[method-assign]
+
+    def _on_step(self) -> bool:
+        for i, info in enumerate(self.locals["infos"]):
+            if "executed_action" not in info:
+                continue
+            self.explore_steps += 1
+            assert self.phases[i] == "explore"
+            np.testing.assert_array_equal(info["executed_action"], self.locals["actions"][i])
+            if self.num_timesteps > self.model.learning_starts:
+                self.explorer_steps += 1
+        return True
 
 
 # ------------------------------------------------------------------------------------------------- world model
@@ -524,23 +559,55 @@ def test_reset_free_training_with_peg_goals_and_the_agents_explore_phase():
     make = reset_free_env()
     env = make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0, wrapper_class=make)
     model = tiny(env)
-    model.learn(400, callback=ResetFreeCallback())
+    explorer = ExplorerCheck()
+    model.learn(400, callback=[ResetFreeCallback(), explorer])
     wrapper = env.envs[0]
-    peg, slot = find_agent_hooks(wrapper)
-    assert isinstance(peg, PEGScheduler) and isinstance(slot, AgentExploreAction)
+    go_explore = wrapper.get_wrapper_attr("agent_goal_scheduler"), wrapper.get_wrapper_attr("agent_explores")
+    peg = go_explore[0]
+    assert isinstance(peg, PEGScheduler) and go_explore[1]
     assert wrapper.get_wrapper_attr("interventions") == 1  # one physical reset in 400 steps
     assert peg.n_planned > 0 and peg.n_fallback > 0  # novelty until learning starts, PEG after
-    assert slot.n_agent > 0  # Explore phases executed pi_E's actions
+    assert explorer.explorer_steps > 0  # Explore phases executed pi_E's actions
     counts = wrapper.get_wrapper_attr("goal_counts")
     assert counts.get("explore", 0) > 0
     # one continuous stream: only the first row is a start
     buffer = model.replay_buffer
     assert buffer.is_first[0, : buffer.pos[0]].sum() == 1
-    assert peg.agent is None  # detached after learn (not pickled with the env)
+    assert not peg.planning  # detached after learn (not pickled with the env)
     # evaluation stays episodic: an eval env with the same wrapper, never switched
     eval_env = Monitor(make(gym.make("GCRL/GrowingTreeGoal-v0")))
     _, lengths = evaluate_policy(model, eval_env, n_eval_episodes=2, return_episode_rewards=True)
     assert lengths == [40, 40]
+
+
+def test_goal_requests_are_answered_through_the_wrapper_and_an_open_one_stops_the_step():
+    env = reset_free_env(eval_horizon=20)(gym.make("GCRL/GrowingTreeGoal-v0"))
+    env.set_training_mode(True)
+    env.reset(seed=0)
+    assert env.takes_planned_goals and env.goal_request() is None
+    env.set_goal_planning(True)
+    info: dict[str, Any] = {}
+    while not info.get(GOAL_REQUEST_KEY):  # forward/back pairs (alpha) are not planned
+        _, info = env.reset()
+    with pytest.raises(RuntimeError, match="answer_goal_request"):
+        env.step(env.action_space.sample())
+    request, rng = env.goal_request()
+    assert rng is env.get_wrapper_attr("_rng")  # the planner draws from the wrapper's generator
+    obs = env.answer_goal_request(np.array([1.5]), rng)
+    assert obs["desired_goal"].tolist() == [1.5] and env.goal.tolist() == [1.5]
+    assert obs["achieved_goal"].tolist() == request["achieved_goal"].tolist()
+    assert env.step(env.action_space.sample())[0]["desired_goal"].tolist() == [1.5]
+    assert env.planned_goal_counts["planned"] == 1
+    with pytest.raises(RuntimeError, match="no goal request"):
+        env.answer_goal_request(None, rng)
+    env.set_goal_planning(False)  # the fallback's goals again, no request
+    assert not any(env.reset()[1].get(GOAL_REQUEST_KEY) for _ in range(20))
+    plain = GoExploreWrapper(ResetFreeWrapper(gym.make("GCRL/GrowingTreeGoal-v0"), eval_horizon=20))
+    assert not plain.takes_planned_goals and plain.acting_policy == "goal"
+    with pytest.raises(ValueError, match="takes_planned_goals"):
+        plain.set_goal_planning(True)
+    with pytest.warns(DeprecationWarning, match="explore_policy='agent'"):
+        AgentExploreAction(plain.action_space)
 
 
 def test_executed_explore_actions_are_stored_with_a_random_explorer():
@@ -628,26 +695,17 @@ def test_learn_stops_at_total_timesteps_whatever_the_train_ratio():
 
 
 @pytest.mark.filterwarnings("ignore:The environment is already wrapped")
-def test_subprocess_envs_with_the_agents_hooks_are_refused_and_vec_wrappers_are_seen_through():
-    from stable_baselines3.common.vec_env import SubprocVecEnv, VecMonitor
+def test_vec_wrappers_are_seen_through():
+    """PEG goals and pi_E's Explore actions through a VecEnv wrapper (subprocess envs: tests/test_subproc.py)."""
+    from stable_baselines3.common.vec_env import VecMonitor
 
     env = make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0, wrapper_class=reset_free_env(eval_horizon=20))
     model = tiny(VecMonitor(env))
-    model.learn(200, callback=ResetFreeCallback())
-    peg, slot = find_agent_hooks(env.envs[0])
-    assert peg is not None and peg.n_planned > 0 and slot is not None and slot.n_agent > 0
-    subprocess = make_vec_env(
-        "GCRL/GrowingTreeGoal-v0",
-        n_envs=1,
-        seed=0,
-        wrapper_class=reset_free_env(eval_horizon=20),
-        vec_env_cls=SubprocVecEnv,
-    )
-    try:
-        with pytest.raises(TypeError, match="DummyVecEnv"):
-            tiny(subprocess).learn(10, callback=ResetFreeCallback())
-    finally:
-        subprocess.close()
+    explorer = ExplorerCheck()
+    model.learn(200, callback=[ResetFreeCallback(), explorer])
+    assert env.get_attr("planned_goal_counts")[0]["planned"] > 0 and explorer.explorer_steps > 0
+    # the reset infos are read under the VecEnv wrapper: one stream, restarted only at the physical start
+    assert model.replay_buffer.is_first[0, : model.replay_buffer.pos[0]].sum() == 1
 
 
 # ------------------------------------------------------------------------------------------------- PEG planner

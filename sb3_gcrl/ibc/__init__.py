@@ -1,10 +1,19 @@
-"""IBC (Implicit and Bidirectional Curriculum, J. Kim et al., ICML 2023): the reset-free baseline of thesis Ch. 3.
+"""Deprecated alias of IBC's old home: import from :mod:`sb3_gcrl.reset_free_baselines` (or ``sb3_gcrl.IBC``).
 
-:class:`IBC` holds the forward and backward SAC agents; :func:`ibc_go_explore` is the ``env_wrapper`` entry that puts
-IBC's phases and curriculum (:class:`IBCCurriculumScheduler`) on the package's reset-free Go/Explore wrapper.
+Re-exports the same objects, so that ``sb3_gcrl.ibc.ibc_go_explore`` in an RL-Zoo ``env_wrapper`` and runs saved
+before the move (pickles naming ``sb3_gcrl.ibc.curriculum`` / ``sb3_gcrl.ibc.ibc``) keep working.
 """
 
-from sb3_gcrl.ibc.curriculum import IBCCurriculumScheduler, find_ibc_scheduler, ibc_go_explore
-from sb3_gcrl.ibc.ibc import IBC
+import warnings
+
+from sb3_gcrl.reset_free_baselines.ibc import IBC
+from sb3_gcrl.reset_free_baselines.ibc_curriculum import IBCCurriculumScheduler, find_ibc_scheduler, ibc_go_explore
+
+warnings.warn(
+    "sb3_gcrl.ibc is deprecated: import IBC, IBCCurriculumScheduler, ibc_go_explore and find_ibc_scheduler from "
+    "sb3_gcrl.reset_free_baselines (RL-Zoo env_wrapper: sb3_gcrl.reset_free_baselines.ibc_go_explore)",
+    DeprecationWarning,
+    stacklevel=2,
+)
 
 __all__ = ["IBC", "IBCCurriculumScheduler", "find_ibc_scheduler", "ibc_go_explore"]

@@ -26,6 +26,7 @@ import numpy as np
 import torch as th
 from scipy.stats import spearmanr
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_gcrl.morefree.networks import Actor, LatentState, symlog
 
@@ -35,11 +36,35 @@ if TYPE_CHECKING:
 
 def true_distance(env: Any, achieved: np.ndarray, goal: np.ndarray) -> np.ndarray:
     """Ground-truth distance from each point of ``achieved (N, G)`` to ``goal (G,)``: the env's
-    ``path_distance`` (e.g. shortest paths through a maze) when it has one, else the Euclidean distance."""
-    base = getattr(env, "unwrapped", env)
-    if hasattr(base, "path_distance"):
+    ``path_distance`` (e.g. shortest paths through a maze) when it has one, else the Euclidean distance.
+
+    :param env: a gymnasium env (wrapped or not) or a :class:`VecEnvGeometry`.
+    """
+    if isinstance(env, VecEnvGeometry):
+        if env.has_path_distance:
+            return np.asarray(env.path_distance(achieved, goal), dtype=np.float64)
+        base = None
+    else:
+        base = getattr(env, "unwrapped", env)
+    if base is not None and hasattr(base, "path_distance"):
         return np.asarray(base.path_distance(achieved, goal), dtype=np.float64)
     return np.linalg.norm(np.asarray(achieved, np.float64) - np.asarray(goal, np.float64).reshape(1, -1), axis=-1)
+
+
+class VecEnvGeometry:
+    """The ground truth of the first env of a VecEnv, for :func:`true_distance`: its ``path_distance`` called through
+    ``VecEnv.env_method`` (so that it works in any VecEnv, a ``SubprocVecEnv`` included), else Euclidean distances.
+
+    :param env: the VecEnv.
+    """
+
+    def __init__(self, env: VecEnv) -> None:
+        self.env = env
+        self.has_path_distance = env.has_attr("path_distance")
+
+    def path_distance(self, achieved: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """The first env's ``path_distance(achieved, goal)``."""
+        return self.env.env_method("path_distance", achieved, goal, indices=[0])[0]
 
 
 def _replay_latents(model: MoReFree, batch: int, rng: np.random.Generator) -> tuple[LatentState, th.Tensor]:
@@ -209,6 +234,7 @@ class MoReFreeDiagnosticsCallback(BaseCallback):
         self._next = diagnose_freq
         #: (timestep, figures) of every probe so far
         self.history: list[tuple[int, dict[str, float]]] = []
+        self._geometry: VecEnvGeometry | None = None
 
     def _on_step(self) -> bool:
         model = self.model
@@ -217,8 +243,9 @@ class MoReFreeDiagnosticsCallback(BaseCallback):
         self._next = self.num_timesteps + self.diagnose_freq
         if getattr(model, "_n_updates", 0) == 0:
             return True
-        env = self.training_env.get_attr("unwrapped", indices=[0])[0]
-        figures = diagnose(model, env, self.n, seed=len(self.history))  # type: ignore[arg-type]
+        if self._geometry is None:
+            self._geometry = VecEnvGeometry(self.training_env)
+        figures = diagnose(model, self._geometry, self.n, seed=len(self.history))  # type: ignore[arg-type]
         self.history.append((self.num_timesteps, figures))
         for name, value in figures.items():
             self.logger.record(f"diagnostics/{name}", value)

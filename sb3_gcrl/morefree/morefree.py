@@ -17,9 +17,11 @@ critics. The environment's reward and ``compute_reward`` are never read for trai
 
 Data collection: in the Go phase of a :class:`~sb3_gcrl.wrappers.GoExploreWrapper` (or with no such wrapper) the
 agent acts with pi_G toward the observation's ``desired_goal`` (the commanded goal); in the Explore phase with
-pi_E (executed through :class:`~sb3_gcrl.morefree.goals.AgentExploreAction`). Exploratory goals come from
-:class:`~sb3_gcrl.morefree.goals.PEGScheduler`, which calls :meth:`MoReFree.plan_exploratory_goal` (PEG's
-cross-entropy planner). docs/morefree.md lists where this departs from PEG and why.
+pi_E (the wrapper, built with ``explore_policy="agent"``, executes it). Exploratory goals come from
+:class:`~sb3_gcrl.morefree.goals.PEGScheduler`: the wrapper asks for them at the resets that draw one and the agent
+answers with :meth:`MoReFree.plan_exploratory_goal` (PEG's cross-entropy planner). The agent reads and answers the
+wrappers only through ``VecEnv.get_attr`` / ``env_method``, so any VecEnv works (``SubprocVecEnv`` included).
+docs/morefree.md lists where this departs from PEG and why.
 """
 
 from __future__ import annotations
@@ -37,15 +39,15 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.utils import safe_mean
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
 from sb3_gcrl.common.runs import warn_if_learning_never_starts
 from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
-from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler, find_agent_hooks
 from sb3_gcrl.morefree.networks import LatentState, frozen, lambda_returns, symlog
 from sb3_gcrl.morefree.policies import MoReFreePolicy, state_vector
+from sb3_gcrl.wrappers.go_explore import ACTING_GOAL, GOAL_REQUEST_KEY
 
 SelfMoReFree = TypeVar("SelfMoReFree", bound="MoReFree")
 
@@ -249,7 +251,9 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
         self._prev_action: th.Tensor | None = None
         self._stream_obs: Any = None
         self._task_goals: TaskRelevantGoals | None = None
-        self._hooks: list[tuple[PEGScheduler | None, AgentExploreAction | None]] = []
+        #: envs whose goal requests the agent answers (set during learn), whether the envs report acting_policy
+        self._planned_envs: list[int] = []
+        self._reads_acting_policy = False
         self._go_steps: int | None = None
         self._compiled: dict[str, Callable[..., Any]] | None = None
         self._alpha = DEFAULT_ALPHA if self.imagination_alpha is None else float(self.imagination_alpha)
@@ -262,7 +266,7 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
             "_prev_action",
             "_stream_obs",
             "_task_goals",
-            "_hooks",
+            "_planned_envs",
             "_compiled",
         ]
 
@@ -293,56 +297,61 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
             raise ValueError(f"{path} does not hold a SequenceReplayBuffer for {self.n_envs} env(s)")
         self.replay_buffer = buffer
 
-    # --- hooks into the Go/Explore wrapper ----------------------------------------------------------------------
-    def _attach(self) -> None:
-        """Find the PEG scheduler / Explore slot of each training env, read alpha and H_G, set up task goals."""
+    # --- the Go/Explore wrapper's public interface --------------------------------------------------------------
+    def _base_vec_env(self) -> VecEnv:
+        """The training VecEnv under its VecEnv wrappers (it holds the reset infos)."""
         env = self.env
         assert env is not None
-        base = env.unwrapped if isinstance(env, VecEnvWrapper) else env
-        direct = isinstance(base, DummyVecEnv)
-        if direct:
-            self._hooks = [find_agent_hooks(e) for e in base.envs]  # type: ignore[attr-defined]
-        else:
-            self._hooks = []
-            peg = env.has_attr("scheduler") and any(isinstance(s, PEGScheduler) for s in self._schedulers())
-            slots = env.has_attr("_explore_policy") and any(
-                isinstance(p, AgentExploreAction) for p in env.get_attr("_explore_policy")
-            )
-            if peg or slots:
-                raise TypeError(
-                    "MoReFree plans PEG goals and chooses pi_E's Explore actions in the training process, which it "
-                    "cannot reach inside subprocess envs: use a DummyVecEnv (make_vec_env(..., "
-                    "vec_env_cls=DummyVecEnv)), or morefree_go_explore(..., exploratory='novelty', explorer='random')"
-                )
-        for peg, _ in self._hooks:
-            if peg is not None:
-                peg.attach(self)
+        return env.unwrapped if isinstance(env, VecEnvWrapper) else env  # type: ignore[return-value]
+
+    def _attach(self) -> None:
+        """Declare the agent as the goal planner of the envs that take planned goals; read alpha and H_G; set up
+        task goals."""
+        env = self.env
+        assert env is not None
+        self._reads_acting_policy = env.has_attr("acting_policy")
+        self._planned_envs = []
+        if env.has_attr("takes_planned_goals"):
+            self._planned_envs = [i for i, takes in enumerate(env.get_attr("takes_planned_goals")) if takes]
+        if self._planned_envs:
+            env.env_method("set_goal_planning", True, indices=self._planned_envs)
         if self.imagination_alpha is None:
             alpha = env.get_attr("task_goal_alpha")[0] if env.has_attr("task_goal_alpha") else None
             self._alpha = DEFAULT_ALPHA if alpha is None else float(alpha)
         self._go_steps = int(env.get_attr("go_steps")[0]) if env.has_attr("go_steps") else None
         if not env.has_attr("sample_task_goals") and self._task_goals is None:
-            source = base.envs[0] if direct else env  # type: ignore[attr-defined]
-            self._task_goals = TaskRelevantGoals(source, self.policy.goal_dim)
-
-    def _schedulers(self) -> list[Any]:
-        assert self.env is not None
-        out = []
-        for scheduler in self.env.get_attr("scheduler"):
-            out.append(getattr(scheduler, "exploratory", scheduler))
-        return out
+            base = self._base_vec_env()
+            source = base.envs[0] if isinstance(base, DummyVecEnv) else env
+            self._task_goals = TaskRelevantGoals(source, self.policy.goal_dim)  # type: ignore[arg-type]
 
     def _detach(self) -> None:
-        for peg, _ in self._hooks:
-            if peg is not None:
-                peg.attach(None)
+        """Stop answering goal requests (the envs take their fallback goals until the next ``learn``)."""
+        if self._planned_envs and self.env is not None:
+            self.env.env_method("set_goal_planning", False, indices=self._planned_envs)
 
     def _phases(self) -> list[str]:
+        """Per env, ``"explore"`` where the next step is an Explore-phase step (pi_E acts), else ``"go"``."""
         assert self.env is not None
-        if not self.env.has_attr("phase"):
+        if not self._reads_acting_policy:
             return ["go"] * self.n_envs
-        training = self.env.get_attr("training")
-        return [p if t else "go" for p, t in zip(self.env.get_attr("phase"), training)]
+        return ["go" if acting == ACTING_GOAL else "explore" for acting in self.env.get_attr("acting_policy")]
+
+    def _answer_goal_requests(self, new_obs: dict[str, np.ndarray], dones: np.ndarray) -> None:
+        """Plan the goals the envs asked for at the resets of this step and write them into ``new_obs``.
+
+        Each request carries the observation and the env's generator; the plan draws from that generator (and the
+        env continues from it), so the run is the same in a ``DummyVecEnv`` and a ``SubprocVecEnv``.
+        """
+        env = self.env
+        assert env is not None
+        reset_infos = self._base_vec_env().reset_infos
+        for i in np.flatnonzero(dones):
+            if not reset_infos[i].get(GOAL_REQUEST_KEY, False):
+                continue
+            obs, rng = env.env_method("goal_request", indices=[i])[0]
+            goal = self.plan_exploratory_goal(obs, rng)
+            commanded = env.env_method("answer_goal_request", goal, rng, indices=[i])[0]
+            new_obs["desired_goal"][i] = commanded["desired_goal"]
 
     # --- task-relevant and imagination goals ---------------------------------------------------------------------
     def _task_goal_samples(self, kind: str, n: int) -> np.ndarray:
@@ -487,7 +496,7 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
             terminal = infos[i].get("terminal_observation")
             if terminal is not None:
                 self.replay_buffer.add(i, state_vector(terminal), executed[i])
-            physical = self.env.reset_infos[i].get("physical_reset", True)
+            physical = self._base_vec_env().reset_infos[i].get("physical_reset", True)
             if physical:
                 self.replay_buffer.add(i, states[i], None)
                 self._record_reset(new_obs, i)
@@ -509,13 +518,11 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
         for _ in range(n_steps):
             obs = self._last_obs
             assert isinstance(obs, dict)
-            phases = self._phases()
-            scaled = self._act(obs, phases)
+            scaled = self._act(obs, self._phases())
             actions = self.policy.unscale_action(scaled)
-            for i, (_, slot) in enumerate(self._hooks):
-                if slot is not None and phases[i] == "explore":
-                    slot.action = actions[i]
             new_obs, rewards, dones, infos = env.step(actions)
+            if self._planned_envs and dones.any():
+                self._answer_goal_requests(new_obs, dones)  # type: ignore[arg-type]
             self.num_timesteps += env.num_envs
             callback.update_locals(locals())
             if not callback.on_step():
@@ -804,10 +811,10 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
         self.logger.record("time/fps", fps)
         self.logger.record("time/time_elapsed", int(time_elapsed), exclude="tensorboard")
         self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
-        peg = [h[0] for h in self._hooks if h[0] is not None]
-        if peg:
-            self.logger.record("morefree/peg_goals_planned", sum(p.n_planned for p in peg))
-            self.logger.record("morefree/peg_goals_fallback", sum(p.n_fallback for p in peg))
+        if self._planned_envs and self.env is not None:
+            counts = self.env.get_attr("planned_goal_counts", indices=self._planned_envs)
+            self.logger.record("morefree/peg_goals_planned", sum(c["planned"] for c in counts))
+            self.logger.record("morefree/peg_goals_fallback", sum(c["fallback"] for c in counts))
         self.logger.dump(step=self.num_timesteps)
 
     def learn(

@@ -19,7 +19,7 @@ holds a second SAC learner, :attr:`ForwardBackwardSAC.backward`, for the backwar
   ``load_replay_buffer`` both buffers in one file.
 
 Subclasses: :class:`~sb3_gcrl.reset_free_baselines.backward_reward.BackwardRewardSAC` (MEDAL, R3L: the backward policy
-learns from a learned reward model) and :class:`~sb3_gcrl.ibc.IBC` (HER buffers, IBC's curriculum).
+learns from a learned reward model) and :class:`~sb3_gcrl.reset_free_baselines.IBC` (HER buffers, IBC's curriculum).
 """
 
 from __future__ import annotations
