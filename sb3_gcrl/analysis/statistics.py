@@ -13,6 +13,7 @@ import pandas as pd
 from scipy.integrate import trapezoid
 
 from sb3_gcrl.common.metrics import visitation_entropy  # Eq. 6.7, re-exported for the reports
+from sb3_gcrl.common.validation import check_int
 
 __all__ = [
     "SCORE_COLUMNS",
@@ -44,8 +45,7 @@ def run_scores(
     :param solve_threshold: level that counts as solved.
     :return: one row per run: ``env, method, seed, final, auc, solved_at, last_timesteps``.
     """
-    if final_window < 1:
-        raise ValueError(f"final_window must be >= 1, got {final_window}")
+    check_int("final_window", final_window)
     rows = []
     for (env_id, method, seed), run in curves.groupby(["env", "method", "seed"], sort=True):
         run = run.sort_values("timesteps")

@@ -21,6 +21,7 @@ from __future__ import annotations
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_gcrl.callbacks.segments import GoalSuccessLog
+from sb3_gcrl.common.validation import check_int
 from sb3_gcrl.wrappers.mode import switch_training_envs
 
 
@@ -34,9 +35,7 @@ class ResetFreeCallback(BaseCallback):
 
     def __init__(self, log_freq: int = 1000, window: int = 100, verbose: int = 0) -> None:
         super().__init__(verbose)
-        if log_freq < 1:
-            raise ValueError(f"log_freq must be >= 1, got {log_freq}")
-        self.log_freq = log_freq
+        self.log_freq = check_int("log_freq", log_freq)
         self.goal_success = GoalSuccessLog(window)
 
     def _on_training_start(self) -> None:

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.logger import Logger
 
+from sb3_gcrl.common.validation import check_int
 from sb3_gcrl.wrappers.segments import GOAL_KIND_KEY, GOAL_KIND_NAMES
 
 
@@ -28,9 +29,7 @@ class GoalSuccessLog:
     """
 
     def __init__(self, window: int = 100) -> None:
-        if int(window) < 1:
-            raise ValueError(f"window must be >= 1, got {window}")
-        self.window = int(window)
+        self.window = check_int("window", window)
         #: recent successes (0/1) per goal kind, by thesis name
         self.successes: dict[str, deque[float]] = {}
         #: current success rate per logger key

@@ -62,16 +62,14 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
         steps that were seen (the authors instead run the policy on past the limit to complete the return; SB3
         cannot step an env past its end). ``False`` writes terminated episodes only.
     :param knn_backend: kNN backend of the memory (see :class:`~sb3_gcrl.memory.KNNIndex`).
-    :param learning_rate: Adam learning rate of actor and critic (authors: 1e-3, PyTorch's default).
-    :param buffer_size: replay buffer size.
     :param learning_starts: random steps before training (authors: 1000).
-    :param batch_size: minibatch size (authors: 256).
-    :param tau: soft update coefficient of the target networks (authors: 0.005).
-    :param gamma: discount of the TD target and of the memory's returns (authors: 0.99).
     :param policy_delay: actor/target update every ``policy_delay`` critic updates (DDPG: 1).
     :param target_policy_noise: std of TD3's target smoothing noise (inactive with ``target_noise_clip=0``).
     :param target_noise_clip: clip of that noise (DDPG: 0, no smoothing).
-    :param kwargs: every other :class:`~stable_baselines3.TD3` argument (``train_freq``, ``action_noise``, ...).
+    :param kwargs: every other :class:`~stable_baselines3.TD3` argument, whose TD3 defaults are the authors' values:
+        ``learning_rate`` (Adam, actor and critic: 1e-3, PyTorch's default), ``buffer_size`` (1e6), ``batch_size``
+        (256), ``tau`` (0.005), ``gamma`` (0.99: the discount of the TD target and of the memory's returns); and
+        ``train_freq``, ``action_noise``, ...
     :raises ValueError: naming the fix, for a non-Box action space, ``alpha`` outside [0, 1], a bad ``k``,
         projection, capacity or weighting, a memory setting given in ``policy_kwargs``, or a HER replay buffer.
     """
@@ -94,12 +92,7 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
         observation_keys: Sequence[str] | None = None,
         memory_update_truncated: bool = True,
         knn_backend: KNNBackend = "auto",
-        learning_rate: float = 1e-3,
-        buffer_size: int = 1_000_000,
         learning_starts: int = 1000,
-        batch_size: int = 256,
-        tau: float = 0.005,
-        gamma: float = 0.99,
         policy_delay: int = 1,
         target_policy_noise: float = 0.1,
         target_noise_clip: float = 0.0,
@@ -135,12 +128,7 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
         super().__init__(
             policy,
             env,
-            learning_rate=learning_rate,
-            buffer_size=buffer_size,
             learning_starts=learning_starts,
-            batch_size=batch_size,
-            tau=tau,
-            gamma=gamma,
             policy_delay=policy_delay,
             target_policy_noise=target_policy_noise,
             target_noise_clip=target_noise_clip,

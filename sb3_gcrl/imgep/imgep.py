@@ -30,6 +30,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_gcrl.common.metrics import coverage, visitation_entropy
 from sb3_gcrl.common.saving import ModelFileMixin
+from sb3_gcrl.common.validation import check_float, check_unit_interval
 from sb3_gcrl.goals.goal_space import BinnedGoalSpace
 from sb3_gcrl.imgep.policies import TabularGoalPolicy
 from sb3_gcrl.imgep.tabular_goal_env import TabularGoalEnv
@@ -96,20 +97,12 @@ class TabularIMGEP(ModelFileMixin, BaseAlgorithm, GoalExplorationAgent):
         device: str = "cpu",
         _init_setup_model: bool = True,
     ) -> None:
-        checks = [
-            ("gamma", gamma, 0.0, 1.0),
-            ("epsilon", epsilon, 0.0, 1.0),
-            ("relabel_fraction", relabel_fraction, 0.0, 1.0),
-        ]
-        if not callable(learning_rate):  # RL-Zoo passes a schedule
-            checks.append(("learning_rate", learning_rate, 0.0, 1.0))
-        for name, value, low, high in checks:
-            if not (isinstance(value, (int, float)) and low <= value <= high):
-                raise ValueError(f"{name} must be a number in [{low}, {high}], got {value!r}")
-        if learning_rate == 0:
-            raise ValueError("learning_rate must be > 0 (Eq. 6.2 would never change the table)")
-        if not (np.isfinite(tau) and tau >= 0):
-            raise ValueError(f"tau must be a finite number >= 0 (Eq. 6.5; 0 = uniform), got {tau!r}")
+        gamma = check_unit_interval("gamma", gamma)
+        epsilon = check_unit_interval("epsilon", epsilon)
+        relabel_fraction = check_unit_interval("relabel_fraction", relabel_fraction)
+        if not callable(learning_rate):  # RL-Zoo passes a schedule; 0 would never change the table (Eq. 6.2)
+            check_unit_interval("learning_rate", learning_rate, exclude_zero=True)
+        tau = check_float("tau (Eq. 6.5; 0 = uniform)", tau, minimum=0.0)
         if isinstance(post_exploration_rule, dict):
             post_exploration_rule = make_post_exploration_rule(**post_exploration_rule)
         if post_exploration_rule is not None and not isinstance(post_exploration_rule, PostExplorationRule):

@@ -6,6 +6,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_gcrl.callbacks.segments import GoalSuccessLog
+from sb3_gcrl.common.validation import check_int
 from sb3_gcrl.post_exploration.metrics import coverage, training_visit_counts, visitation_entropy
 from sb3_gcrl.wrappers.mode import switch_training_envs
 
@@ -34,9 +35,7 @@ class PostExplorationCallback(BaseCallback):
         self, log_freq: int = 1000, require_executed_actions: bool = True, window: int = 100, verbose: int = 0
     ) -> None:
         super().__init__(verbose)
-        if int(log_freq) < 1:
-            raise ValueError(f"log_freq must be >= 1, got {log_freq}")
-        self.log_freq = int(log_freq)
+        self.log_freq = check_int("log_freq", log_freq)
         self.require_executed_actions = require_executed_actions
         self.goal_success = GoalSuccessLog(window)
 

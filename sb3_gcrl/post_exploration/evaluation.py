@@ -22,6 +22,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_gcrl.common.validation import check_int, check_optional_int
 from sb3_gcrl.post_exploration.interface import GoalExplorationAgent
 from sb3_gcrl.post_exploration.metrics import coverage, training_visit_counts, visitation_entropy
 
@@ -183,16 +184,12 @@ class AllGoalsEvalCallback(BaseCallback):
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose)
-        if int(eval_freq) < 1:
-            raise ValueError(f"eval_freq must be >= 1, got {eval_freq}")
         if isinstance(goals, str) and goals not in GOAL_GRIDS:
             raise ValueError(f"Unknown goal grid {goals!r}; choose one of {sorted(GOAL_GRIDS)} or pass an array")
-        if max_steps is not None and int(max_steps) < 1:
-            raise ValueError(f"max_steps must be >= 1 or None, got {max_steps}")
         self.eval_env = eval_env
-        self.eval_freq = int(eval_freq)
+        self.eval_freq = check_int("eval_freq", eval_freq)
         self.goals = goals
-        self.max_steps = max_steps
+        self.max_steps = check_optional_int("max_steps", max_steps)
         self.timesteps: list[int] = []
         self.success_rates: list[float] = []
         self.per_goal: list[np.ndarray] = []

@@ -19,6 +19,8 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from sb3_gcrl.common.validation import check_float, check_int, check_optional_int
+
 
 class PostExplorationRule(ABC):
     """Decides the number of post-exploration steps when a commanded goal is reached."""
@@ -45,9 +47,7 @@ class FixedSteps(PostExplorationRule):
     """
 
     def __init__(self, n_pe: int) -> None:
-        if int(n_pe) < 0 or int(n_pe) != n_pe:
-            raise ValueError(f"n_pe must be a non-negative integer, got {n_pe!r}")
-        self.n_pe = int(n_pe)
+        self.n_pe = check_int("n_pe", n_pe, minimum=0)
 
     def length(self, steps_to_goal: int, goal_visits: float, typical_visits: float) -> int:
         return self.n_pe
@@ -61,12 +61,8 @@ class ProportionalSteps(PostExplorationRule):
     """
 
     def __init__(self, p_pe: float, min_steps: int = 1) -> None:
-        if not (np.isfinite(p_pe) and p_pe >= 0):
-            raise ValueError(f"p_pe must be a finite number >= 0, got {p_pe!r}")
-        if int(min_steps) < 0:
-            raise ValueError(f"min_steps must be >= 0, got {min_steps!r}")
-        self.p_pe = float(p_pe)
-        self.min_steps = int(min_steps)
+        self.p_pe = check_float("p_pe", p_pe, minimum=0.0)
+        self.min_steps = check_int("min_steps", min_steps, minimum=0)
 
     def length(self, steps_to_goal: int, goal_visits: float, typical_visits: float) -> int:
         return max(self.min_steps, int(np.ceil(self.p_pe * steps_to_goal)))
@@ -100,23 +96,15 @@ class NoveltyAdaptive(PostExplorationRule):
         min_steps: int = 1,
         max_steps: int | None = None,
     ) -> None:
-        if not (np.isfinite(p_pe) and p_pe >= 0):
-            raise ValueError(f"p_pe must be a finite number >= 0, got {p_pe!r}")
-        if not (np.isfinite(beta) and beta >= 0):
-            raise ValueError(f"beta must be a finite number >= 0, got {beta!r}")
-        if not (0 <= min_scale <= max_scale):
+        self.p_pe = check_float("p_pe", p_pe, minimum=0.0)
+        self.n_pe = check_optional_int("n_pe", n_pe)
+        self.beta = check_float("beta", beta, minimum=0.0)
+        self.min_scale = check_float("min_scale", min_scale, minimum=0.0)
+        self.max_scale = check_float("max_scale", max_scale, minimum=0.0)
+        if self.min_scale > self.max_scale:
             raise ValueError(f"Need 0 <= min_scale <= max_scale, got {min_scale!r} and {max_scale!r}")
-        if max_steps is not None and int(max_steps) < min_steps:
-            raise ValueError(f"max_steps ({max_steps}) must be >= min_steps ({min_steps})")
-        if n_pe is not None and (int(n_pe) != n_pe or n_pe < 1):
-            raise ValueError(f"n_pe must be a positive integer, got {n_pe!r}")
-        self.p_pe = float(p_pe)
-        self.n_pe = None if n_pe is None else int(n_pe)
-        self.beta = float(beta)
-        self.min_scale = float(min_scale)
-        self.max_scale = float(max_scale)
-        self.min_steps = int(min_steps)
-        self.max_steps = None if max_steps is None else int(max_steps)
+        self.min_steps = check_int("min_steps", min_steps, minimum=0)
+        self.max_steps = check_optional_int("max_steps", max_steps, minimum=self.min_steps)
 
     def scale(self, goal_visits: float, typical_visits: float) -> float:
         """Novelty stretch ``(typical / n(g))^beta`` clipped to ``max_scale``."""

@@ -27,7 +27,7 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.env_util import unwrap_wrapper
 
-from sb3_gcrl.common.validation import check_finite_rewards
+from sb3_gcrl.common.validation import check_finite_rewards, check_float
 from sb3_gcrl.goals.schedulers import GoalScheduler, make_scheduler
 from sb3_gcrl.goals.task_goals import GoalKind, TaskRelevantGoals
 from sb3_gcrl.wrappers.goal_env import check_goal_env, record_constructor_args
@@ -91,9 +91,9 @@ class GoalCommandWrapper(
             self.scheduler = make_scheduler(
                 scheduler, self.task_goals, achieved_goal_space=achieved_space, **(scheduler_kwargs or {})
             )
-        if success_distance is not None and not success_distance > 0:
-            raise ValueError(f"success_distance must be > 0, got {success_distance}")
-        self.success_distance = success_distance
+        self.success_distance = None
+        if success_distance is not None:
+            self.success_distance = check_float("success_distance", success_distance, 0.0, exclusive_minimum=True)
         # a mode-switched wrapper below (ResetFreeWrapper) gets the switches passed on and warns instead of this one
         self._mode_below: TrainingModeMixin | None = unwrap_wrapper(env, TrainingModeMixin)
         self._init_training_mode(warns=self._mode_below is None)
