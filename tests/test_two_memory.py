@@ -252,7 +252,7 @@ def test_save_load_round_trip_dqn(tmp_path):
     np.testing.assert_array_equal(loaded.policy.episode_counts, model.policy.episode_counts)
     np.testing.assert_array_equal(model.predict(observations, deterministic=True)[0],
                                   loaded.predict(observations, deterministic=True)[0])  # fmt: skip
-    assert loaded.data_sharing and loaded._p_ec_schedule.decay == 300 and loaded.p_ec == model.p_ec
+    assert loaded.dispatcher.data_sharing and loaded.dispatcher.p_ec_schedule.decay == 300 and loaded.p_ec == model.p_ec
     loaded.set_env(make_vec_env(Corridor, n_envs=2, seed=2))
     loaded.learn(100)  # training continues after loading
 
@@ -439,15 +439,15 @@ def test_defaults_have_one_place():
     algorithm = TwoMemoryDQN("MlpPolicy", Corridor(), gamma=0.9, **TINY_DQN)
     stock = DQN(TwoMemoryDQNPolicy, Corridor(), gamma=0.9, **STOCK_DQN)
     callback = TwoMemoryCallback()
-    for schedule in (algorithm._p_ec_schedule, callback.p_ec_schedule):
+    for schedule in (algorithm.dispatcher.p_ec_schedule, callback.dispatcher.p_ec_schedule):
         assert (schedule.start, schedule.end, schedule.decay) == (0.9, 0.1, 500_000)
     assert DEFAULT_P_EC_SCHEDULE == {"type": "decayed", "start": 0.9, "end": 0.1, "decay": 500_000}
     # ec_gamma defaults to the algorithm's gamma on both paths
-    assert algorithm.policy.ec_gamma == 0.9
+    assert algorithm.dispatcher.ec_gamma == 0.9
     stock.learn(30, callback=callback)
-    assert stock.policy.ec_gamma == 0.9
+    assert callback.dispatcher.ec_gamma == 0.9
     sac = TwoMemorySAC("MlpPolicy", Slider(), **TINY_SAC)
-    assert sac._p_ec_schedule.decay == TwoMemorySAC.default_p_ec_schedule["decay"] == 50_000
+    assert sac.dispatcher.p_ec_schedule.decay == TwoMemorySAC.default_p_ec_schedule["decay"] == 50_000
 
 
 @pytest.mark.parametrize("algorithm", ["dqn", "sac"])
@@ -479,3 +479,187 @@ def test_algorithm_and_policy_state_the_same_ec_defaults(algorithm):
     assert "ec_n_neighbors" in shared
     for name in shared:
         assert algo_params[name].default == policy_params[name].default, name
+
+
+# ------------------------------------------------------------------------------------------------ one driver, one owner
+def _record_draws(policy) -> list[np.ndarray]:
+    """Wrap ``policy.assign_memories`` so that every draw's result is kept (no callback involved)."""
+    draws = []
+    assign = policy.assign_memories
+
+    def recording_assign(p_ec: float) -> np.ndarray:
+        memories = assign(p_ec)
+        draws.append(memories.copy())
+        return memories
+
+    policy.assign_memories = recording_assign
+    return draws
+
+
+def _policy_state(model) -> dict[str, np.ndarray]:
+    """Every tensor of the policy's state_dict (network parameters, MFEC rows, score windows, episode counts)."""
+    state = {}
+    for key, value in model.policy.state_dict().items():
+        for name, tensor in value.items() if isinstance(value, dict) else [("", value)]:
+            state[f"{key}/{name}"] = tensor.detach().cpu().numpy()
+    return state
+
+
+def test_the_algorithm_drives_the_dispatch_as_the_callback_does_for_stock_dqn():
+    """``learn`` without any callback dispatches as stock DQN driven by TwoMemoryCallback: with one env, no epsilon
+    and no warm-up (where stock DQN differs) both draw the same memories and end with the same parameters."""
+    from stable_baselines3 import DQN
+
+    from sb3_gcrl.two_memory import TwoMemoryCallback, TwoMemoryDQNPolicy
+
+    settings = dict(learning_starts=0, exploration_initial_eps=0.0, exploration_final_eps=0.0, seed=3, gamma=0.9)
+    makers = (
+        lambda: (TwoMemoryDQN("MlpPolicy", make_vec_env(Corridor, n_envs=1, seed=0), p_ec_schedule=0.5,
+                              **{**TINY_DQN, **settings}), None),
+        lambda: (DQN(TwoMemoryDQNPolicy, make_vec_env(Corridor, n_envs=1, seed=0), **{**STOCK_DQN, **settings}),
+                 TwoMemoryCallback(p_ec_schedule=0.5)),
+    )  # fmt: skip
+    runs, models = [], []
+    for make in makers:  # (each built right before it learns: seeding sets numpy's global generator)
+        model, callback = make()
+        draws = _record_draws(model.policy)
+        model.learn(500, callback=callback)
+        runs.append((np.concatenate(draws), _policy_state(model)))
+        models.append(model)
+    (algorithm_draws, algorithm_state), (stock_draws, stock_state) = runs
+    assert len(algorithm_draws) > 20 and {EPISODIC, PARAMETRIC} <= set(algorithm_draws.tolist())
+    np.testing.assert_array_equal(algorithm_draws, stock_draws)
+    assert algorithm_state.keys() == stock_state.keys()
+    for key, value in algorithm_state.items():
+        np.testing.assert_array_equal(value, stock_state[key], err_msg=key)
+    assert len(models[0].policy.memory) > 0 and models[0].policy.episode_counts.min() > 0
+
+
+@pytest.mark.parametrize("algorithm", ["dqn", "sac", "tabular"])
+@pytest.mark.parametrize(
+    "setting, match",
+    [
+        (dict(p_ec_schedule=1.5), r"p_ec must be a number in \[0, 1\], got 1.5"),
+        (dict(p_ec_schedule=-0.1), r"p_ec must be a number in \[0, 1\]"),
+        (
+            dict(p_ec_schedule={"type": "linear"}),
+            "unknown type 'linear', valid types are decayed, increasing, exponential, constant, adaptive",
+        ),
+        (dict(p_ec_schedule={"type": "decayed", "start": 0.9}), "type 'decayed' takes start, end, decay"),
+        (dict(p_ec_schedule={"type": "constant", "p": 0.5}), "type 'constant' takes p_ec"),
+        (dict(p_ec_schedule="often"), "Cannot build a p_ec schedule from 'often'.*'adaptive'"),
+        (dict(data_sharing="no"), "data_sharing must be True or False, got 'no'"),
+        (dict(ec_update_truncated=None), "ec_update_truncated must be True or False"),
+        (dict(score_window=0), "score_window must be >= 1"),
+        (dict(score_window=2.5), "score_window must be an integer"),
+        (dict(ec_gamma=1.5), r"ec_gamma must be a number in \[0, 1\]"),
+        (dict(policy_kwargs=dict(data_sharing=False)), "pass data_sharing to .* itself, not in policy_kwargs"),
+        (dict(policy_kwargs=dict(score_window=10)), "pass score_window to .* itself, not in policy_kwargs"),
+    ],
+)
+def test_each_bad_setting_raises_at_construction_naming_it(algorithm, setting, match):
+    from sb3_gcrl.tabular import TabularTwoMemory
+
+    kwargs = dict(setting)
+    with pytest.raises(ValueError, match=match):
+        if algorithm == "tabular":
+            TabularTwoMemory(env=gym.make("GCRL/WindyGrid-v0"), **kwargs)
+        else:
+            cls, env, tiny = (
+                (TwoMemoryDQN, Corridor(), TINY_DQN) if algorithm == "dqn" else (TwoMemorySAC, Slider(), TINY_SAC)
+            )
+            policy_kwargs = {**tiny["policy_kwargs"], **kwargs.pop("policy_kwargs", {})}
+            cls("MlpPolicy", env, **{**tiny, **kwargs, "policy_kwargs": policy_kwargs})
+
+
+def test_stock_dqn_settings_raise_where_they_are_given():
+    from stable_baselines3 import DQN
+
+    from sb3_gcrl.two_memory import TwoMemoryCallback, TwoMemoryDQNPolicy
+
+    with pytest.raises(ValueError, match=r"p_ec must be a number in \[0, 1\]"):
+        TwoMemoryCallback(p_ec_schedule=1.5)
+    with pytest.raises(ValueError, match="ec_gamma"):
+        TwoMemoryCallback(ec_gamma=2.0)
+    # the training settings are not the policy's: the error says where they go
+    for name, value in (("data_sharing", False), ("ec_gamma", 0.9), ("p_ec_schedule", 0.5)):
+        kwargs = {**STOCK_DQN, "policy_kwargs": {**STOCK_DQN["policy_kwargs"], name: value}}
+        with pytest.raises(ValueError, match=f"{name} is a training setting of 2M.*TwoMemoryCallback"):
+            DQN(TwoMemoryDQNPolicy, Corridor(), **kwargs)
+
+
+def test_settings_have_the_same_defaults_for_the_algorithms_the_callback_and_the_policies():
+    import inspect
+
+    from sb3_gcrl.tabular import TabularTwoMemoryPolicy
+    from sb3_gcrl.two_memory import TwoMemoryCallback, TwoMemoryDispatcher, TwoMemoryDQNPolicy, TwoMemorySACPolicy
+    from sb3_gcrl.two_memory.dispatch import TwoMemoryAlgorithmMixin
+
+    def defaults(function) -> dict:
+        return {name: p.default for name, p in inspect.signature(function).parameters.items()}
+
+    algorithm = defaults(TwoMemoryAlgorithmMixin.__init__)
+    for name in TwoMemoryDispatcher.settings:
+        assert defaults(TwoMemoryDispatcher.__init__)[name] == algorithm[name], name
+    for name in ("ec_gamma", "ec_update_truncated"):
+        assert defaults(TwoMemoryCallback.__init__)[name] == algorithm[name], name
+    for policy_class in (TwoMemoryDQNPolicy, TwoMemorySACPolicy, TabularTwoMemoryPolicy):
+        assert defaults(policy_class.__init__)["score_window"] == algorithm["score_window"], policy_class
+
+
+class CountingSchedule(ExponentialSchedule):
+    """Eq. 5.5 that also counts its calls: a schedule with a state of its own."""
+
+    def __init__(self) -> None:
+        super().__init__(start=0.8, end=0.2, decay=200)
+        self.calls = 0
+
+    def __call__(self, num_timesteps, scores):
+        self.calls += 1
+        return super().__call__(num_timesteps, scores)
+
+
+@pytest.mark.parametrize("spec", ["adaptive", "stateful"])
+def test_save_load_keeps_the_schedule_and_its_state(spec, tmp_path):
+    schedule = AdaptiveSchedule(min_episodes=2) if spec == "adaptive" else CountingSchedule()
+    model = TwoMemoryDQN("MlpPolicy", make_vec_env(Corridor, n_envs=2, seed=0), p_ec_schedule=schedule, seed=0,
+                         **TINY_DQN)  # fmt: skip
+    model.learn(300)
+    model.save(tmp_path / "2m.zip")
+    loaded = TwoMemoryDQN.load(tmp_path / "2m.zip")
+    saved, restored = model.dispatcher, loaded.dispatcher
+    assert repr(restored) == repr(saved) and type(restored.p_ec_schedule) is type(saved.p_ec_schedule)
+    assert loaded.p_ec == model.p_ec
+    if spec == "stateful":
+        assert restored.p_ec_schedule.calls == saved.p_ec_schedule.calls > 0
+    else:  # the adaptive p_ec reads the score windows, restored with the policy
+        assert restored.p_ec_schedule(loaded.num_timesteps, loaded.policy.score_windows) == pytest.approx(
+            saved.p_ec_schedule(model.num_timesteps, model.policy.score_windows)
+        )
+    assert saved.episodes.buffers is not None and restored.episodes.buffers is None  # running episodes: not saved
+    loaded.set_env(make_vec_env(Corridor, n_envs=2, seed=1))
+    loaded.learn(100)
+
+
+def test_episode_recorder_hands_over_finished_episodes():
+    from sb3_gcrl.common.episodes import EpisodeRecorder
+
+    recorder = EpisodeRecorder()
+    steps = [([0, 10], [1, 0], [1.0, 2.0], [False, False]), ([1, 11], [0, 1], [0.0, 3.0], [True, False]),
+             ([2, 12], [1, 1], [5.0, 4.0], [False, True])]  # fmt: skip
+    finished = []
+    for keys, actions, rewards, dones in steps:
+        infos = [{"TimeLimit.truncated": bool(done) and env == 1} for env, done in enumerate(dones)]
+        finished += recorder.record(np.array(keys), np.array(actions), np.array(rewards), np.array(dones), infos)
+    first, second = finished
+    assert (first.env_index, first.truncated, first.updates_memory(False)) == (0, False, True)
+    np.testing.assert_array_equal(first.keys, [0, 1])
+    np.testing.assert_allclose(first.returns(0.5), [1.0, 0.0])
+    assert (second.env_index, second.truncated, second.updates_memory(False), second.updates_memory(True)) == (
+        1,
+        True,
+        False,
+        True,
+    )
+    assert second.episode_return == 9.0
+    np.testing.assert_array_equal(second.actions, [0, 1, 1])

@@ -8,10 +8,11 @@ import numpy as np
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 
-from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
+from sb3_gcrl.common.episodes import EpisodeRecorder
+from sb3_gcrl.common.validation import check_unit_interval
 from sb3_gcrl.tabular.policies import TabularECPolicy
 from sb3_gcrl.tabular.tabular_algorithm import TabularAlgorithm
-from sb3_gcrl.two_memory.schedules import check_unit_interval
+from sb3_gcrl.two_memory.dispatch import check_bool
 
 
 class TabularEpisodicControl(TabularAlgorithm):
@@ -43,12 +44,10 @@ class TabularEpisodicControl(TabularAlgorithm):
         **kwargs: Any,
     ) -> None:
         kwargs.setdefault("buffer_size", 1)
-        if ec_gamma is not None:
-            check_unit_interval("ec_gamma", ec_gamma)
-        self.ec_gamma = ec_gamma
-        self.ec_update_truncated = ec_update_truncated
+        self.ec_gamma = None if ec_gamma is None else check_unit_interval("ec_gamma", ec_gamma)
+        self.ec_update_truncated = check_bool("ec_update_truncated", ec_update_truncated)
         super().__init__(policy, env, **kwargs)
-        self._episodes: EpisodeBuffers | None = None
+        self._episodes = EpisodeRecorder()
 
     @property
     def ec_table(self) -> np.ndarray:
@@ -57,8 +56,8 @@ class TabularEpisodicControl(TabularAlgorithm):
     def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
         previous_obs = self._last_obs
         result = super()._setup_learn(*args, **kwargs)
-        if self._last_obs is not previous_obs or self._episodes is None:
-            self._episodes = EpisodeBuffers(self.n_envs, (), (), np.int64, key_dtype=np.int64)
+        if self._last_obs is not previous_obs:
+            self._episodes.reset()  # the envs were reset: their running episodes are gone
         return result
 
     def _store_transition(
@@ -71,14 +70,11 @@ class TabularEpisodicControl(TabularAlgorithm):
         infos: list[dict[str, Any]],
     ) -> None:
         # No replay: record the step, update the table at episode ends.
-        assert self._episodes is not None
-        self._episodes.add(np.asarray(self._last_obs).reshape(-1), np.asarray(buffer_action).reshape(-1), reward)
+        states, actions = np.asarray(self._last_obs).reshape(-1), np.asarray(buffer_action).reshape(-1)
         gamma = self.gamma if self.ec_gamma is None else self.ec_gamma
-        for env_index in np.flatnonzero(dones):
-            states, actions, rewards = self._episodes.pop(env_index)
-            if infos[env_index].get("TimeLimit.truncated", False) and not self.ec_update_truncated:
-                continue
-            self.policy.update_episode(states, actions, discounted_returns(rewards, gamma))
+        for episode in self._episodes.record(states, actions, reward, dones, infos):
+            if episode.updates_memory(self.ec_update_truncated):
+                self.policy.update_episode(episode.keys, episode.actions, episode.returns(gamma))
         self._last_obs = new_obs
 
     def train(self, gradient_steps: int, batch_size: int = 32) -> None:

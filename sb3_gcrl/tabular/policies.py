@@ -6,7 +6,7 @@ policy's ``state_dict`` as tensors, so SB3's ``save``/``load`` restores them exa
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
@@ -59,7 +59,61 @@ class TabularBasePolicy(BasePolicy):
         return data
 
 
-class TabularQPolicy(TabularBasePolicy):
+class TabularTablePolicy(TabularBasePolicy):
+    """Greedy policy of one ``(n_states, n_actions)`` table: a numpy array named :attr:`table_name`, saved in the
+    ``state_dict`` under that name, whose start is set by one float constructor argument, :attr:`value_parameter`.
+
+    :param observation_space: Discrete state space.
+    :param action_space: Discrete action space.
+    :param value: the value of :attr:`value_parameter` (kept as an attribute of that name).
+    :param initial_entry: what every entry of the table stores at construction.
+    """
+
+    #: attribute (and ``state_dict`` key) of the table
+    table_name: ClassVar[str]
+    #: the constructor argument that sets the table's start
+    value_parameter: ClassVar[str]
+    #: the table's name in error messages
+    table_label: ClassVar[str]
+
+    def __init__(
+        self, observation_space: spaces.Space, action_space: spaces.Space, value: float, initial_entry: float
+    ) -> None:
+        super().__init__(observation_space, action_space)
+        n_states, n_actions = check_tabular_spaces(observation_space, action_space, type(self).__name__)
+        setattr(self, self.value_parameter, float(value))
+        setattr(self, self.table_name, np.full((n_states, n_actions), initial_entry, dtype=np.float64))
+
+    @property
+    def table(self) -> np.ndarray:
+        """The table (``q_table`` / ``ec_table``)."""
+        return getattr(self, self.table_name)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data[self.value_parameter] = getattr(self, self.value_parameter)
+        return data
+
+    def q_values(self, states: np.ndarray) -> np.ndarray:
+        """Values of a batch of state indices, shape (n, n_actions)."""
+        return self.table[states]
+
+    def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
+        return th.as_tensor(greedy_actions(self.q_values(_states(observation)), not deterministic))
+
+    def get_extra_state(self) -> dict[str, th.Tensor]:
+        return {self.table_name: th.from_numpy(self.table.copy())}
+
+    def set_extra_state(self, state: dict[str, th.Tensor]) -> None:
+        table = state[self.table_name].numpy()
+        if table.shape != self.table.shape:
+            raise ValueError(
+                f"saved {self.table_label} has shape {table.shape}, this policy expects {self.table.shape}"
+            )
+        self.table[...] = table
+
+
+class TabularQPolicy(TabularTablePolicy):
     """Greedy policy of a Q-table ``Q[s, a]`` (tabular 1-step Q-learning, thesis Eq. 5.1 in its tabular form).
 
     :param observation_space: Discrete state space.
@@ -68,6 +122,12 @@ class TabularQPolicy(TabularBasePolicy):
     :param initial_value: initial Q-value of every entry.
     """
 
+    table_name = "q_table"
+    value_parameter = "initial_value"
+    table_label = "Q-table"
+    q_table: np.ndarray
+    initial_value: float
+
     def __init__(
         self,
         observation_space: spaces.Space,
@@ -75,34 +135,10 @@ class TabularQPolicy(TabularBasePolicy):
         lr_schedule: Schedule | None = None,
         initial_value: float = 0.0,
     ) -> None:
-        super().__init__(observation_space, action_space)
-        n_states, n_actions = check_tabular_spaces(observation_space, action_space, type(self).__name__)
-        self.initial_value = float(initial_value)
-        self.q_table = np.full((n_states, n_actions), self.initial_value, dtype=np.float64)
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(initial_value=self.initial_value)
-        return data
-
-    def q_values(self, states: np.ndarray) -> np.ndarray:
-        """Q-values of a batch of state indices, shape (n, n_actions)."""
-        return self.q_table[states]
-
-    def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
-        return th.as_tensor(greedy_actions(self.q_values(_states(observation)), not deterministic))
-
-    def get_extra_state(self) -> dict[str, th.Tensor]:
-        return {"q_table": th.from_numpy(self.q_table.copy())}
-
-    def set_extra_state(self, state: dict[str, th.Tensor]) -> None:
-        table = state["q_table"].numpy()
-        if table.shape != self.q_table.shape:
-            raise ValueError(f"saved Q-table has shape {table.shape}, this policy expects {self.q_table.shape}")
-        self.q_table[...] = table
+        super().__init__(observation_space, action_space, initial_value, float(initial_value))
 
 
-class TabularECPolicy(TabularBasePolicy):
+class TabularECPolicy(TabularTablePolicy):
     """Tabular episodic control: ``Q_ec[s, a]`` is the highest discounted return seen after (s, a) (Eq. 5.2).
 
     Unvisited entries are stored as ``-inf`` and read as ``unseen_value`` (0 in the authors' code, which is
@@ -114,6 +150,12 @@ class TabularECPolicy(TabularBasePolicy):
     :param unseen_value: value of a never-visited (s, a).
     """
 
+    table_name = "ec_table"
+    value_parameter = "unseen_value"
+    table_label = "EC table"
+    ec_table: np.ndarray
+    unseen_value: float
+
     def __init__(
         self,
         observation_space: spaces.Space,
@@ -121,15 +163,7 @@ class TabularECPolicy(TabularBasePolicy):
         lr_schedule: Schedule | None = None,
         unseen_value: float = 0.0,
     ) -> None:
-        super().__init__(observation_space, action_space)
-        n_states, n_actions = check_tabular_spaces(observation_space, action_space, type(self).__name__)
-        self.unseen_value = float(unseen_value)
-        self.ec_table = np.full((n_states, n_actions), -np.inf, dtype=np.float64)
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(unseen_value=self.unseen_value)
-        return data
+        super().__init__(observation_space, action_space, unseen_value, -np.inf)
 
     def q_values(self, states: np.ndarray) -> np.ndarray:
         """EC values of a batch of state indices (unvisited -> ``unseen_value``), shape (n, n_actions)."""
@@ -147,18 +181,6 @@ class TabularECPolicy(TabularBasePolicy):
             self.ec_table, (np.asarray(states).reshape(-1).astype(np.int64), np.asarray(actions).reshape(-1)), returns
         )
 
-    def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
-        return th.as_tensor(greedy_actions(self.q_values(_states(observation)), not deterministic))
-
-    def get_extra_state(self) -> dict[str, th.Tensor]:
-        return {"ec_table": th.from_numpy(self.ec_table.copy())}
-
-    def set_extra_state(self, state: dict[str, th.Tensor]) -> None:
-        table = state["ec_table"].numpy()
-        if table.shape != self.ec_table.shape:
-            raise ValueError(f"saved EC table has shape {table.shape}, this policy expects {self.ec_table.shape}")
-        self.ec_table[...] = table
-
 
 class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, TabularBasePolicy):
     """Tabular 2M (thesis Sec. 5.5.1): a :class:`TabularECPolicy` (2M-EC) and a :class:`TabularQPolicy` (2M-RL)
@@ -167,11 +189,7 @@ class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, TabularBasePolicy):
     :param observation_space: Discrete state space.
     :param action_space: Discrete action space.
     :param lr_schedule: unused; kept for SB3's policy signature.
-    :param data_sharing: update the EC table with every episode (True, thesis) or only with its own.
     :param score_window: n of Eq. 5.6.
-    :param ec_gamma: discount of the returns stored in the EC table (``None``: the algorithm's ``gamma``).
-    :param ec_update_truncated: also learn from time-limit-truncated episodes (thesis: every finished episode; see
-        ``TwoMemoryDispatchMixin``).
     :param unseen_value: EC value of an unvisited (s, a).
     :param initial_q: initial Q-value.
     """
@@ -183,10 +201,7 @@ class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, TabularBasePolicy):
         observation_space: spaces.Space,
         action_space: spaces.Space,
         lr_schedule: Schedule | None = None,
-        data_sharing: bool = True,
         score_window: int = 50,
-        ec_gamma: float | None = None,
-        ec_update_truncated: bool = True,
         unseen_value: float = 0.0,
         initial_q: float = 0.0,
     ) -> None:
@@ -195,7 +210,7 @@ class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, TabularBasePolicy):
         self.q_policy = TabularQPolicy(observation_space, action_space, initial_value=initial_q)
         self.unseen_value = self.ec_policy.unseen_value
         self.initial_q = self.q_policy.initial_value
-        self._init_dispatch(data_sharing, score_window, ec_gamma, ec_update_truncated)
+        self._init_dispatch(score_window)
 
     @property
     def q_table(self) -> np.ndarray:

@@ -13,8 +13,8 @@ from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
+from sb3_gcrl.common.validation import check_unit_interval
 from sb3_gcrl.tabular.policies import check_tabular_spaces
-from sb3_gcrl.two_memory.schedules import check_unit_interval
 
 SelfTabularAlgorithm = TypeVar("SelfTabularAlgorithm", bound="TabularAlgorithm")
 

@@ -9,7 +9,7 @@ from stable_baselines3.common.policies import BasePolicy
 
 from sb3_gcrl.tabular.policies import TabularTwoMemoryPolicy
 from sb3_gcrl.tabular.q_learning import TabularQLearning
-from sb3_gcrl.two_memory.dispatch import PecSpec, TwoMemoryAlgorithmMixin
+from sb3_gcrl.two_memory.dispatch import TwoMemoryAlgorithmMixin
 
 
 class TabularTwoMemory(TwoMemoryAlgorithmMixin, TabularQLearning):
@@ -21,16 +21,13 @@ class TabularTwoMemory(TwoMemoryAlgorithmMixin, TabularQLearning):
 
     :param policy: policy class or alias.
     :param env: env with Discrete observation and action spaces.
-    :param p_ec_schedule: p_ec schedule, see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`. ``None``:
-        :attr:`default_p_ec_schedule`, the authors' tabular 0.9 -> 0.01 with decay 2e4 steps (Eq. 5.5).
-    :param data_sharing: share every episode between both memories (thesis) or not (2Mw/oDS).
-    :param score_window: n of Eq. 5.6.
-    :param ec_gamma: discount of the returns stored in the EC table (None: ``gamma``).
-    :param ec_update_truncated: also write time-limit-truncated episodes into the EC table (thesis: every finished
-        episode).
     :param unseen_value: EC value of an unvisited (s, a) (authors: 0).
     :param initial_q: initial Q-value.
-    :param kwargs: the other :class:`~sb3_gcrl.tabular.tabular_algorithm.TabularAlgorithm` arguments.
+    :param kwargs: the 2M settings of :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryAlgorithmMixin`
+        (``p_ec_schedule``, ``None``: :attr:`default_p_ec_schedule`, the authors' tabular 0.9 -> 0.01 with decay
+        2e4 steps (Eq. 5.5); ``data_sharing``, ``False``: 2Mw/oDS; ``score_window``; ``ec_gamma``, ``None``:
+        ``gamma``; ``ec_update_truncated``) and the other
+        :class:`~sb3_gcrl.tabular.tabular_algorithm.TabularAlgorithm` arguments.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"TabularTwoMemoryPolicy": TabularTwoMemoryPolicy}
@@ -42,19 +39,12 @@ class TabularTwoMemory(TwoMemoryAlgorithmMixin, TabularQLearning):
         self,
         policy: str | type[BasePolicy] = "TabularTwoMemoryPolicy",
         env: Any = None,
-        p_ec_schedule: PecSpec | None = None,
-        data_sharing: bool = True,
-        score_window: int = 50,
-        ec_gamma: float | None = None,
-        ec_update_truncated: bool = True,
+        *,
         unseen_value: float = 0.0,
         initial_q: float = 0.0,
         **kwargs: Any,
     ) -> None:
-        ec_kwargs = dict(unseen_value=unseen_value, initial_q=initial_q)
-        super().__init__(
-            policy, env, p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated, ec_kwargs, **kwargs
-        )
+        super().__init__(policy, env, ec_kwargs=self.policy_settings(locals()), **kwargs)
 
     @property
     def ec_table(self) -> np.ndarray:

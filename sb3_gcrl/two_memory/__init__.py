@@ -2,6 +2,7 @@
 
 from sb3_gcrl.two_memory.buffers import SourceTaggedReplayBuffer
 from sb3_gcrl.two_memory.callbacks import TwoMemoryCallback
+from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatcher
 from sb3_gcrl.two_memory.policies import (
     MinAtarCNN,
     MinAtarDQNPolicy,
@@ -37,6 +38,7 @@ __all__ = [
     "TwoMemoryCallback",
     "TwoMemoryDQN",
     "TwoMemoryDQNPolicy",
+    "TwoMemoryDispatcher",
     "TwoMemoryMinAtarPolicy",
     "TwoMemoryMultiInputDQNPolicy",
     "TwoMemoryMultiInputSACPolicy",

@@ -1,49 +1,69 @@
-"""2M with stock SB3 DQN / stock ``rl_zoo3 train --algo dqn``: the algorithm's part of 2M as a callback.
+"""2M with stock SB3 DQN / stock ``rl_zoo3 train --algo dqn``: the 2M dispatcher hosted by a callback.
 
 With a :class:`~sb3_gcrl.two_memory.policies.TwoMemoryDQNPolicy` given as ``policy`` (a dotted path in the zoo
 YAML), stock DQN already acts through the policy's per-env dispatch (``DQN.predict`` calls ``policy.predict``).
-What stock DQN lacks is what :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryAlgorithmMixin` does: the p_ec schedule,
-drawing each env's memory when its episode starts, and the end-of-episode work (updating MFEC and the score windows).
-:class:`TwoMemoryCallback` does it from ``_on_step``, which SB3 calls after ``env.step`` and before the transition
-is stored, so ``model._last_obs`` is still the observation the action was taken in.
+What stock DQN lacks are the hooks through which a 2M algorithm drives its
+:class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryDispatcher`. :class:`TwoMemoryCallback` holds one and calls it from
+``_on_step``, which SB3 calls after ``env.step`` and before the transition is stored, so ``model._last_obs`` is
+still the observation the action was taken in: the same draws, episode ends and logs as
+:class:`~sb3_gcrl.two_memory.TwoMemoryDQN`.
 
 Differences from :class:`~sb3_gcrl.two_memory.TwoMemoryDQN` (the recommended way, ``sb3-gcrl train --algo
-two_memory_dqn``): stock DQN draws one epsilon coin for all envs of a step and uses random actions during
-``learning_starts`` for both memories, and its replay buffer cannot filter by source, so ``data_sharing=False``
-is refused.
+two_memory_dqn``, which needs no callback): stock DQN draws one epsilon coin for all envs of a step and uses random
+actions during ``learning_starts`` for both memories, and its replay buffer cannot filter by source, so data is
+always shared.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_gcrl.two_memory.dispatch import (
-    PecSpec,
-    TwoMemoryAlgorithmMixin,
-    TwoMemoryDispatchMixin,
-    current_p_ec,
-    draw_memories,
-    record_two_memory_logs,
-    truncated_ends,
-)
-from sb3_gcrl.two_memory.schedules import DEFAULT_P_EC_SCHEDULE, make_pec_schedule
+from sb3_gcrl.two_memory.dispatch import PecSpec, TwoMemoryAlgorithmMixin, TwoMemoryDispatcher, TwoMemoryDispatchMixin
+from sb3_gcrl.two_memory.schedules import DEFAULT_P_EC_SCHEDULE
 
 
 class TwoMemoryCallback(BaseCallback):
-    """Drives the 2M policy of a stock off-policy algorithm: draws the acting memories by the p_ec schedule and feeds
-    every step to the policy (episode ends -> MFEC update, scores).
+    """Drives the 2M policy of a stock off-policy algorithm (stock DQN with a ``TwoMemoryDQNPolicy``) through a
+    :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryDispatcher`: draws the acting memories by the p_ec schedule and
+    finishes every episode (episodic-memory update, scores, logs).
+
+    Not for the 2M algorithms, which drive their own dispatcher (``learn`` without callbacks). Use one callback for
+    successive ``learn`` calls on the same envs: a new one starts every env on a fresh episode record.
 
     :param p_ec_schedule: p_ec schedule (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`); ``None``:
         the default of :class:`~sb3_gcrl.two_memory.TwoMemoryDQN`, Eq. 5.5 with 0.9 -> 0.1 and decay 5e5 steps.
         In a zoo YAML: ``callback: [{sb3_gcrl.two_memory.callbacks.TwoMemoryCallback: {p_ec_schedule: ...}}]``.
+    :param ec_gamma: discount of the returns stored in the episodic memory (``None``: the algorithm's ``gamma``).
+    :param ec_update_truncated: also write time-limit-truncated episodes into the episodic memory.
     :param verbose: verbosity.
+    :raises ValueError: for a bad schedule or setting (at construction), or, when training starts, for a 2M algorithm
+        or a policy that is not a 2M policy.
     """
 
-    def __init__(self, p_ec_schedule: PecSpec | None = None, verbose: int = 0) -> None:
+    def __init__(
+        self,
+        p_ec_schedule: PecSpec | None = None,
+        ec_gamma: float | None = None,
+        ec_update_truncated: bool = True,
+        verbose: int = 0,
+    ) -> None:
         super().__init__(verbose)
-        self.p_ec_schedule = make_pec_schedule(DEFAULT_P_EC_SCHEDULE if p_ec_schedule is None else p_ec_schedule)
-        #: p_ec of the last draw (logged as ``two_memory/p_ec``)
-        self.p_ec = 0.0
+        #: the dispatch of Algorithm 2 and the owner of its settings (stock DQN cannot filter its replay buffer by
+        #: source, so data is always shared)
+        self.dispatcher = TwoMemoryDispatcher(
+            DEFAULT_P_EC_SCHEDULE if p_ec_schedule is None else p_ec_schedule,
+            data_sharing=True,
+            ec_gamma=ec_gamma,
+            ec_update_truncated=ec_update_truncated,
+        )
+        self._obs_at_training_end: Any = None
+
+    @property
+    def p_ec(self) -> float:
+        """p_ec of the last draw (logged as ``two_memory/p_ec``)."""
+        return self.dispatcher.p_ec
 
     def _init_callback(self) -> None:
         if isinstance(self.model, TwoMemoryAlgorithmMixin):
@@ -56,37 +76,24 @@ class TwoMemoryCallback(BaseCallback):
                 "TwoMemoryCallback needs a 2M policy (e.g. policy: "
                 f"sb3_gcrl.two_memory.policies.TwoMemoryMinAtarPolicy), got {type(self.model.policy).__name__}"
             )
-        if not self.model.policy.data_sharing:
-            raise ValueError(
-                "data_sharing=False needs the replay buffer to drop EC transitions, which stock DQN cannot do; "
-                "use sb3-gcrl train --algo two_memory_dqn (TwoMemoryDQN) for that ablation"
-            )
-        if self.model.policy.ec_gamma is None:
-            # the policy's ec_gamma default is the algorithm's gamma, as with TwoMemoryDQN
-            self.model.policy.set_ec_gamma(self.model.gamma)
-        self.p_ec = current_p_ec(self.p_ec_schedule, self.model.num_timesteps, self.model.policy)
-
-    def _draw(self) -> None:
-        _, self.p_ec = draw_memories(self.p_ec_schedule, self.model.num_timesteps, self.model.policy, self.p_ec)
+        self.dispatcher.use_gamma_by_default(self.model.gamma)
 
     def _on_training_start(self) -> None:
-        policy = self.model.policy
-        if policy.acting_memory.size != self.model.n_envs:
-            policy.reset_episodes(self.model.n_envs)
-        self._draw()
+        envs_reset = self.model._last_obs is not self._obs_at_training_end
+        self.dispatcher.start(self.model.policy, self.model.n_envs, self.model.num_timesteps, envs_reset)
 
     def _on_step(self) -> bool:
-        policy = self.model.policy
-        infos, dones = self.locals["infos"], self.locals["dones"]
-        self._draw()  # (a no-op unless the envs were reset since)
-        finished = policy.record_step(
+        self.dispatcher.step(
+            self.model.policy,
             self.model._last_obs,
             self.locals["buffer_actions"],
             self.locals["rewards"],
-            dones,
-            truncated_ends(dones, infos),
+            self.locals["dones"],
+            self.locals["infos"],
+            self.model.num_timesteps,
+            self.logger,
         )
-        if finished:
-            record_two_memory_logs(self.logger, policy, self.p_ec, None)
-            self._draw()  # the envs that start an episode get their memory before the next action
         return True
+
+    def _on_training_end(self) -> None:
+        self._obs_at_training_end = self.model._last_obs

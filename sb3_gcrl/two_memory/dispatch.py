@@ -1,21 +1,26 @@
 """Per-episode dispatch between an episodic memory (2M-EC) and a parametric one (2M-RL), thesis Algorithm 2.
 
-Two mixins, one per SB3 side, as in SB3 (the algorithm owns its schedules, the policy holds what is saved):
+Three parts, as in SB3 (the algorithm drives training and owns its schedules, the policy acts and holds what is
+saved):
 
 - :class:`TwoMemoryDispatchMixin` is mixed into an SB3 policy that holds both memories (tabular, DQN or SAC
-  flavour). It holds which memory runs each env's current episode, the running episodes and, when one ends, the
-  episodic-memory update (Eq. 5.2) -- with every episode when data is shared, only with the EC's own episodes when
-  it is not (ablation 2Mw/oDS) -- and the score windows (last 50 returns per memory) with the evaluation memory of
-  Eq. 5.6, used by ``predict(deterministic=True)``. ``get_extra_state`` puts all of it into the policy's
-  ``state_dict``, so ``save``/``load`` bring back the tables, the network and the score windows together.
-- :class:`TwoMemoryAlgorithmMixin` is mixed into the SB3 algorithm. It owns the p_ec schedule (Eq. 5.5 or another
-  :mod:`~sb3_gcrl.two_memory.schedules` schedule), draws the acting memory of each env when its episode starts,
-  hands the 2M and EC settings to the policy, and holds the set-up, the train step guard and the logging of the
-  three 2M agents (:class:`~sb3_gcrl.two_memory.TwoMemoryDQN`, :class:`~sb3_gcrl.two_memory.TwoMemorySAC`,
+  flavour). It acts with the memory that runs each env's current episode, keeps the score windows (last
+  ``score_window`` returns per memory) with the evaluation memory of Eq. 5.6 used by ``predict(deterministic=True)``,
+  and puts them into its ``state_dict`` (``get_extra_state``), so ``save``/``load`` bring back the tables, the
+  network and the score windows together.
+- :class:`TwoMemoryDispatcher` drives the dispatch during training and is the one owner of its settings: the p_ec
+  schedule (Eq. 5.5 or another :mod:`~sb3_gcrl.two_memory.schedules` schedule), data sharing, the discount of the
+  episodic returns and whether cut episodes update the episodic memory. It draws each env's memory when its episode
+  starts, records the running episodes and, when one ends, scores it and updates the episodic memory (Eq. 5.2) --
+  with every episode when data is shared, only with the EC's own when it is not (ablation 2Mw/oDS).
+- :class:`TwoMemoryAlgorithmMixin` is mixed into the SB3 algorithm: it builds the dispatcher from its constructor
+  arguments and calls it from ``_setup_learn`` and ``_store_transition``, so ``learn`` needs no callback. It also
+  holds the set-up, the per-env exploration, the train step guard and the logging of the three 2M agents
+  (:class:`~sb3_gcrl.two_memory.TwoMemoryDQN`, :class:`~sb3_gcrl.two_memory.TwoMemorySAC`,
   :class:`~sb3_gcrl.tabular.TabularTwoMemory`).
 
-With stock SB3 DQN, :class:`~sb3_gcrl.two_memory.callbacks.TwoMemoryCallback` takes the algorithm's part, with the
-same :func:`draw_memories` and :func:`record_two_memory_logs`.
+Stock SB3 DQN has no such hooks: :class:`~sb3_gcrl.two_memory.callbacks.TwoMemoryCallback` calls the same
+dispatcher from a callback.
 """
 
 from __future__ import annotations
@@ -30,10 +35,10 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.policies import BasePolicy
 
+from sb3_gcrl.common.episodes import EpisodeRecorder, truncated_ends
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
-from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
-from sb3_gcrl.memory.validation import check_int
+from sb3_gcrl.common.validation import check_unit_interval
 from sb3_gcrl.two_memory.buffers import SourceTaggedReplayBuffer
 from sb3_gcrl.two_memory.schedules import (
     DEFAULT_P_EC_SCHEDULE,
@@ -42,12 +47,32 @@ from sb3_gcrl.two_memory.schedules import (
     UNASSIGNED,
     PecSchedule,
     ScoreWindows,
-    check_unit_interval,
     make_pec_schedule,
 )
 
+__all__ = [
+    "PecSpec",
+    "TwoMemoryAlgorithmMixin",
+    "TwoMemoryDispatchMixin",
+    "TwoMemoryDispatcher",
+    "check_bool",
+    "truncated_ends",
+]
+
 #: what ``p_ec_schedule`` accepts (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`)
 PecSpec = PecSchedule | float | str | dict[str, Any]
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """Return ``value`` as a ``bool`` after checking that it is one (``"false"`` from a command line would be true).
+
+    :param name: parameter name used in the error message.
+    :param value: the value to check.
+    :raises ValueError: naming ``name``, for anything but ``True`` / ``False``.
+    """
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
 
 
 def _batch_size(observation: th.Tensor | dict[str, th.Tensor]) -> int:
@@ -69,41 +94,45 @@ def _select_rows(observation: th.Tensor | dict[str, th.Tensor], index: th.Tensor
 
 
 class TwoMemoryDispatchMixin:
-    """Dispatch logic of a 2M policy; mix in before the SB3 policy (``class P(TwoMemoryDispatchMixin, DQNPolicy)``).
+    """Acting side of a 2M policy; mix in before the SB3 policy (``class P(TwoMemoryDispatchMixin, DQNPolicy)``).
 
-    Concrete policies implement :meth:`_episodic_actions`, :meth:`_parametric_actions`,
-    :meth:`update_episodic_memory` and, if their episodic memory is not a sub-module with its own state,
-    :meth:`_episodic_state` / :meth:`_load_episodic_state`. They list their 2M / EC constructor arguments in
-    :attr:`ec_parameters` and keep each as an attribute of the same name (saved by ``policy.save``).
+    Concrete policies call :meth:`_init_dispatch` after the SB3 policy's ``__init__``, implement
+    :meth:`_episodic_actions`, :meth:`_parametric_actions`, :meth:`update_episodic_memory` and, if their episodic
+    memory is not a sub-module with its own state, :meth:`_episodic_state` / :meth:`_load_episodic_state`. They list
+    their constructor settings in :attr:`ec_parameters` and keep each as an attribute of the same name (saved by
+    ``policy.save``). The training-time settings (p_ec schedule, data sharing, ``ec_gamma``,
+    ``ec_update_truncated``) are the :class:`TwoMemoryDispatcher`'s, not the policy's.
     """
 
-    #: constructor arguments of the 2M / EC settings, each kept as an attribute of the same name
-    ec_parameters: ClassVar[tuple[str, ...]] = ("data_sharing", "score_window", "ec_gamma", "ec_update_truncated")
+    #: constructor arguments of the policy's 2M / EC settings, each kept as an attribute of the same name
+    ec_parameters: ClassVar[tuple[str, ...]] = ("score_window",)
 
-    def _init_dispatch(
-        self, data_sharing: bool, score_window: int, ec_gamma: float | None, ec_update_truncated: bool
-    ) -> None:
-        """:param data_sharing: update the episodic memory with every episode (thesis default) instead of only its own.
-            The algorithm applies the same switch to the replay buffer.
-        :param score_window: n of Eq. 5.6 (50 in the thesis).
-        :param ec_gamma: discount of the returns stored in the episodic memory; ``None``: the algorithm's
-            ``gamma``, filled in by the 2M algorithm or by :class:`~sb3_gcrl.two_memory.callbacks.TwoMemoryCallback`.
-        :param ec_update_truncated: also write time-limit-truncated episodes into the episodic memory (thesis: the
-            Monte-Carlo update of Algorithm 1 / Algorithm 2 runs on every finished episode). ``False`` keeps cut
-            episodes out of the memory (their returns still count in the score windows).
+    def _init_dispatch(self, score_window: int) -> None:
+        """:param score_window: n of Eq. 5.6 (50 in the thesis): the evaluation memory is the one with the higher
+        mean return over its last ``score_window`` training episodes.
         """
-        self.data_sharing = bool(data_sharing)
-        self.score_window = check_int("score_window", score_window)
-        self.ec_gamma: float | None = None
-        if ec_gamma is not None:
-            self.set_ec_gamma(ec_gamma)
-        self.ec_update_truncated = bool(ec_update_truncated)
-        self.score_windows = ScoreWindows(self.score_window)
+        self.score_windows = ScoreWindows(score_window)
+        self.score_window = self.score_windows.window
         #: memory running each env's current episode (EPISODIC, PARAMETRIC or UNASSIGNED)
         self.acting_memory = np.zeros(0, dtype=np.int8)
-        self.episodes: EpisodeBuffers | None = None
         #: episodes run by each memory since construction (saved)
         self.episode_counts = np.zeros(2, dtype=np.int64)
+
+    @staticmethod
+    def refuse_dispatcher_settings(policy_kwargs: dict[str, Any], policy_name: str) -> None:
+        """Raise if a setting of the :class:`TwoMemoryDispatcher` is given to the policy.
+
+        :param policy_kwargs: the policy's keyword arguments.
+        :param policy_name: the policy's class name, for the message.
+        :raises ValueError: naming where the setting goes.
+        """
+        for name in ("p_ec_schedule", *TwoMemoryDispatcher.settings):
+            if name in policy_kwargs:
+                raise ValueError(
+                    f"{name} is a training setting of 2M, not of {policy_name}: pass it to the 2M algorithm "
+                    "(TwoMemoryDQN, TwoMemorySAC, TabularTwoMemory) or, with stock DQN, to TwoMemoryCallback "
+                    "(stock DQN always shares data)"
+                )
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()  # type: ignore[misc]
@@ -117,18 +146,13 @@ class TwoMemoryDispatchMixin:
         :param seed: seed.
         """
 
-    def set_ec_gamma(self, ec_gamma: float) -> None:
-        """Set the discount of the returns stored in the episodic memory.
-
-        :param ec_gamma: discount in [0, 1].
-        """
-        self.ec_gamma = check_unit_interval("ec_gamma", ec_gamma)
-
     # ----------------------------------------------------------------------------------------------- episodes
-    def reset_episodes(self, n_envs: int) -> None:
-        """Forget running episodes (the envs were reset); the next draw gives every env a memory."""
+    def reset_acting_memory(self, n_envs: int) -> None:
+        """No env has an acting memory (the envs were reset); the next draw gives every env one.
+
+        :param n_envs: number of training envs.
+        """
         self.acting_memory = np.full(n_envs, UNASSIGNED, dtype=np.int8)
-        self.episodes = None
 
     def needs_memories(self) -> bool:
         """Whether some env starts an episode and has no acting memory yet."""
@@ -137,7 +161,7 @@ class TwoMemoryDispatchMixin:
     def assign_memories(self, p_ec: float) -> np.ndarray:
         """Draw a memory for every env that starts an episode (Algorithm 2: ``U(0,1) < p_ec`` -> EC).
 
-        :param p_ec: probability that an episode is run by the episodic memory (from the algorithm's schedule).
+        :param p_ec: probability that an episode is run by the episodic memory (from the p_ec schedule).
         :return: the acting memory of each env.
         """
         unassigned = np.flatnonzero(self.acting_memory == UNASSIGNED)
@@ -146,55 +170,19 @@ class TwoMemoryDispatchMixin:
             self.acting_memory[unassigned] = np.where(draws, EPISODIC, PARAMETRIC)
         return self.acting_memory
 
-    def record_step(
-        self,
-        observations: np.ndarray,
-        actions: np.ndarray,
-        rewards: np.ndarray,
-        dones: np.ndarray,
-        truncated: np.ndarray | None = None,
-    ) -> list[tuple[int, int, float]]:
-        """Record one step of every env; finish the episodes that ended.
+    def end_episode(self, env_index: int, episode_return: float) -> int:
+        """An episode of env ``env_index`` ended: score it (Eq. 5.6 window of its memory), count it, and leave the
+        env without a memory until the next draw.
 
-        :param observations: observations the actions were taken in, shape (n_envs, *obs_shape).
-        :param actions: executed actions (env space), shape (n_envs, *action_shape).
-        :param rewards: rewards, shape (n_envs,).
-        :param dones: episode ends (termination or truncation), shape (n_envs,).
-        :param truncated: which of those ends are time-limit truncations (None: none).
-        :return: ``(env_index, memory, undiscounted return)`` for each finished episode.
+        :param env_index: the env.
+        :param episode_return: the episode's undiscounted return.
+        :return: the memory that ran the episode.
         """
-        n_envs = len(rewards)
-        if self.acting_memory.size != n_envs:
-            raise RuntimeError(f"record_step got {n_envs} envs but dispatch was set up for {self.acting_memory.size}")
-        if self.needs_memories():
-            raise RuntimeError("record_step called for an env that has no acting memory; call assign_memories first")
-        if self.ec_gamma is None:
-            raise RuntimeError(
-                "ec_gamma is not set: pass ec_gamma to the policy, or train it with a 2M algorithm or with "
-                "TwoMemoryCallback, which use the algorithm's gamma"
-            )
-        features = self._episode_features(observations)
-        actions = np.asarray(actions)
-        if self.episodes is None:
-            self.episodes = EpisodeBuffers(
-                n_envs, features.shape[1:], actions.shape[1:], actions.dtype, key_dtype=features.dtype
-            )
-        self.episodes.add(features, actions, rewards)
-        finished = []
-        for env_index in np.flatnonzero(dones):
-            episode_features, episode_actions, episode_rewards = self.episodes.pop(env_index)
-            memory = int(self.acting_memory[env_index])
-            episode_return = float(episode_rewards.sum())
-            self.score_windows.push(memory, episode_return)
-            self.episode_counts[memory] += 1
-            cut = truncated is not None and bool(truncated[env_index])
-            if (self.data_sharing or memory == EPISODIC) and (self.ec_update_truncated or not cut):
-                self.update_episodic_memory(
-                    episode_features, episode_actions, discounted_returns(episode_rewards, self.ec_gamma)
-                )
-            self.acting_memory[env_index] = UNASSIGNED
-            finished.append((int(env_index), memory, episode_return))
-        return finished
+        memory = int(self.acting_memory[env_index])
+        self.score_windows.push(memory, episode_return)
+        self.episode_counts[memory] += 1
+        self.acting_memory[env_index] = UNASSIGNED
+        return memory
 
     def evaluation_memory(self) -> int:
         """Eq. 5.6: the memory with the higher mean return over its last ``score_window`` training episodes."""
@@ -205,7 +193,7 @@ class TwoMemoryDispatchMixin:
         """Greedy action of each row's memory: the evaluation memory (Eq. 5.6) if ``deterministic``, else the
         memory running that env's episode. A batch whose size is not the number of training envs (e.g. a single
         observation given to ``predict``), and an env whose next memory is not drawn yet, use the evaluation
-        memory: predicting never changes the dispatch (the algorithm or the callback draws the memories).
+        memory: predicting never changes the dispatch (the :class:`TwoMemoryDispatcher` draws the memories).
         """
         n = _batch_size(observation)
         if deterministic or self.acting_memory.size != n:
@@ -278,53 +266,159 @@ class TwoMemoryDispatchMixin:
         self._load_episodic_state(state)
 
 
-def current_p_ec(schedule: PecSchedule, num_timesteps: int, policy: TwoMemoryDispatchMixin) -> float:
-    """p_ec of ``schedule`` at ``num_timesteps`` with the policy's current scores (Eq. 5.5 / 5.6 windows).
+class TwoMemoryDispatcher:
+    """Drives the per-episode dispatch of thesis Algorithm 2 for a :class:`TwoMemoryDispatchMixin` policy, and owns
+    its training settings.
 
-    :raises ValueError: if the schedule returns a value outside [0, 1].
+    Its host -- a 2M algorithm (:class:`TwoMemoryAlgorithmMixin`) or, with stock DQN,
+    :class:`~sb3_gcrl.two_memory.callbacks.TwoMemoryCallback` -- calls :meth:`start` when training starts and
+    :meth:`step` after every env step. Each env's memory is drawn when its episode starts (``U(0,1) < p_ec`` -> EC,
+    p_ec read from the schedule then, never switched mid-episode); every finished episode is scored (Eq. 5.6
+    windows) and, by the settings below, written into the episodic memory (Eq. 5.2).
+
+    Saved with the algorithm (the schedule, its state and the p_ec of the last draw; running episodes are not: the
+    envs are reset when training resumes after ``load``).
+
+    :param p_ec_schedule: the p_ec schedule or its spec (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`).
+    :param data_sharing: update the episodic memory with every episode (thesis Sec. 5.4.3) instead of only with the
+        EC-run ones (2Mw/oDS). The 2M algorithm applies the same switch to its replay buffer.
+    :param ec_gamma: discount of the returns stored in the episodic memory; ``None``: the host algorithm's ``gamma``
+        (see :meth:`use_gamma_by_default`).
+    :param ec_update_truncated: also write time-limit-truncated episodes into the episodic memory (thesis: the
+        Monte-Carlo update of Algorithm 1 / Algorithm 2 runs on every finished episode). ``False`` keeps cut episodes
+        out of the memory (their returns still count in the score windows).
+    :raises ValueError: for a bad schedule spec (naming the accepted forms) or a setting out of range.
     """
-    p_ec = float(schedule(num_timesteps, policy.score_windows))
-    if not 0.0 <= p_ec <= 1.0:
-        raise ValueError(f"p_ec schedule {schedule!r} returned {p_ec}, outside [0, 1]")
-    return p_ec
 
+    #: the settings besides the p_ec schedule, each an attribute and a constructor argument of the same name
+    settings: ClassVar[tuple[str, ...]] = ("data_sharing", "ec_gamma", "ec_update_truncated")
 
-def draw_memories(
-    schedule: PecSchedule, num_timesteps: int, policy: TwoMemoryDispatchMixin, p_ec: float
-) -> tuple[np.ndarray, float]:
-    """Give every env that starts an episode its acting memory (Algorithm 2), p_ec read from ``schedule`` then.
+    def __init__(
+        self,
+        p_ec_schedule: PecSpec,
+        data_sharing: bool = True,
+        ec_gamma: float | None = None,
+        ec_update_truncated: bool = True,
+    ) -> None:
+        self.p_ec_schedule = make_pec_schedule(p_ec_schedule)
+        self.data_sharing = check_bool("data_sharing", data_sharing)
+        self.ec_gamma = None if ec_gamma is None else check_unit_interval("ec_gamma", ec_gamma)
+        self.ec_update_truncated = check_bool("ec_update_truncated", ec_update_truncated)
+        #: p_ec of the last draw (logged as ``two_memory/p_ec``); before any, the schedule's value at step 0
+        self.p_ec = self._schedule_value(0, ScoreWindows())
+        #: running episodes of the training envs
+        self.episodes = EpisodeRecorder()
 
-    :param schedule: the p_ec schedule.
-    :param num_timesteps: env steps so far.
-    :param policy: the 2M policy.
-    :param p_ec: the p_ec of the last draw (kept when no env starts an episode).
-    :return: the acting memory of each env and the p_ec of the last draw.
-    """
-    if policy.needs_memories():
-        p_ec = current_p_ec(schedule, num_timesteps, policy)
-    return policy.assign_memories(p_ec), p_ec
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["episodes"] = EpisodeRecorder()  # running episodes are not saved
+        return state
 
+    def __repr__(self) -> str:
+        settings = ", ".join(f"{name}={getattr(self, name)!r}" for name in self.settings)
+        return f"{type(self).__name__}(p_ec_schedule={self.p_ec_schedule!r}, {settings})"
 
-def record_two_memory_logs(
-    logger: Logger, policy: TwoMemoryDispatchMixin, p_ec: float, replay_buffer: ReplayBuffer | None
-) -> None:
-    """Log ``two_memory/*``: p_ec of the last draw, both scores (Eq. 5.6), the evaluation memory, episodes per
-    memory, the fraction of envs acting with EC and the fraction of EC data in a source-tagged replay buffer."""
-    windows = policy.score_windows
-    logger.record("two_memory/p_ec", p_ec)
-    for memory, name in ((EPISODIC, "ec"), (PARAMETRIC, "rl")):
-        if windows.n_episodes(memory) > 0:
-            logger.record(f"two_memory/score_{name}", windows.score(memory))
-        logger.record(f"two_memory/episodes_{name}", int(policy.episode_counts[memory]))
-    logger.record("two_memory/eval_memory_is_ec", int(policy.evaluation_memory() == EPISODIC))
-    logger.record("two_memory/acting_ec_fraction", float(np.mean(policy.acting_memory == EPISODIC)))
-    if isinstance(replay_buffer, SourceTaggedReplayBuffer):
-        logger.record("two_memory/buffer_ec_fraction", replay_buffer.source_fraction(EPISODIC))
+    def use_gamma_by_default(self, gamma: float) -> None:
+        """Use ``gamma`` (the host algorithm's) as ``ec_gamma`` if none was given.
 
+        :param gamma: discount in [0, 1].
+        """
+        if self.ec_gamma is None:
+            self.ec_gamma = check_unit_interval("gamma", gamma)
 
-def truncated_ends(dones: np.ndarray, infos: list[dict[str, Any]]) -> np.ndarray:
-    """Which episode ends of a step are time-limit truncations (SB3's ``TimeLimit.truncated``)."""
-    return np.array([bool(done) and info.get("TimeLimit.truncated", False) for done, info in zip(dones, infos)])
+    def _schedule_value(self, num_timesteps: int, scores: ScoreWindows) -> float:
+        p_ec = float(self.p_ec_schedule(num_timesteps, scores))
+        if not 0.0 <= p_ec <= 1.0:
+            raise ValueError(f"p_ec schedule {self.p_ec_schedule!r} returned {p_ec}, outside [0, 1]")
+        return p_ec
+
+    def start(self, policy: TwoMemoryDispatchMixin, n_envs: int, num_timesteps: int, envs_reset: bool) -> None:
+        """Training starts: forget the running episodes if the envs were reset (or their number changed), then give
+        every env that starts an episode its memory.
+
+        :param policy: the 2M policy.
+        :param n_envs: number of training envs.
+        :param num_timesteps: env steps so far.
+        :param envs_reset: whether the envs were reset since the last :meth:`step`.
+        """
+        if envs_reset or policy.acting_memory.size != n_envs:
+            policy.reset_acting_memory(n_envs)
+            self.episodes.reset()
+        self.draw(policy, num_timesteps)
+
+    def draw(self, policy: TwoMemoryDispatchMixin, num_timesteps: int) -> None:
+        """Give every env that starts an episode its acting memory, p_ec read from the schedule now.
+
+        :param policy: the 2M policy.
+        :param num_timesteps: env steps so far.
+        """
+        if policy.needs_memories():
+            self.p_ec = self._schedule_value(num_timesteps, policy.score_windows)
+            policy.assign_memories(self.p_ec)
+
+    def step(
+        self,
+        policy: TwoMemoryDispatchMixin,
+        observations: np.ndarray | dict[str, np.ndarray],
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+        num_timesteps: int,
+        logger: Logger,
+        replay_buffer: ReplayBuffer | None = None,
+    ) -> None:
+        """After an env step: record it; if episodes ended, score them, update the episodic memory, log
+        ``two_memory/*`` and draw the memories of the envs that start a new episode.
+
+        :param policy: the 2M policy.
+        :param observations: observations the actions were taken in, shape (n_envs, *obs_shape).
+        :param actions: executed actions as the policy outputs them (scaled to [-1, 1] for Box spaces).
+        :param rewards: the env's rewards, shape (n_envs,).
+        :param dones: episode ends (termination or truncation), shape (n_envs,).
+        :param infos: the step's infos (``TimeLimit.truncated`` marks a cut).
+        :param num_timesteps: env steps so far, this step included.
+        :param logger: where to log.
+        :param replay_buffer: the replay buffer (its share of EC data is logged when it is source-tagged).
+        :raises RuntimeError: if the policy's envs do not match, an env has no memory, or ``ec_gamma`` is unset.
+        """
+        if policy.acting_memory.size != len(rewards):
+            raise RuntimeError(
+                f"step got {len(rewards)} envs but dispatch was set up for {policy.acting_memory.size}; call start"
+            )
+        if policy.needs_memories():
+            raise RuntimeError("step called for an env that has no acting memory; call start first")
+        if self.ec_gamma is None:
+            raise RuntimeError("ec_gamma is not set: pass ec_gamma, or call use_gamma_by_default with the algorithm's")
+        finished = self.episodes.record(policy._episode_features(observations), actions, rewards, dones, infos)
+        for episode in finished:
+            memory = policy.end_episode(episode.env_index, episode.episode_return)
+            if episode.updates_memory(self.ec_update_truncated) and (self.data_sharing or memory == EPISODIC):
+                policy.update_episodic_memory(episode.keys, episode.actions, episode.returns(self.ec_gamma))
+        if finished:
+            self.record_logs(logger, policy, replay_buffer)
+            self.draw(policy, num_timesteps)
+
+    def record_logs(
+        self, logger: Logger, policy: TwoMemoryDispatchMixin, replay_buffer: ReplayBuffer | None = None
+    ) -> None:
+        """Log ``two_memory/*``: p_ec of the last draw, both scores (Eq. 5.6), the evaluation memory, episodes per
+        memory, the fraction of envs acting with EC and the fraction of EC data in a source-tagged replay buffer.
+
+        :param logger: where to log.
+        :param policy: the 2M policy.
+        :param replay_buffer: the replay buffer, if any.
+        """
+        windows = policy.score_windows
+        logger.record("two_memory/p_ec", self.p_ec)
+        for memory, name in ((EPISODIC, "ec"), (PARAMETRIC, "rl")):
+            if windows.n_episodes(memory) > 0:
+                logger.record(f"two_memory/score_{name}", windows.score(memory))
+            logger.record(f"two_memory/episodes_{name}", int(policy.episode_counts[memory]))
+        logger.record("two_memory/eval_memory_is_ec", int(policy.evaluation_memory() == EPISODIC))
+        logger.record("two_memory/acting_ec_fraction", float(np.mean(policy.acting_memory == EPISODIC)))
+        if isinstance(replay_buffer, SourceTaggedReplayBuffer):
+            logger.record("two_memory/buffer_ec_fraction", replay_buffer.source_fraction(EPISODIC))
 
 
 class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
@@ -332,19 +426,20 @@ class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
 
     Mix in first (``class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN)``). It
 
-    - takes the 2M switches and the EC settings as constructor arguments (a subclass passes its EC settings as
-      ``ec_kwargs``; their names are kept in ``ec_settings``) and hands them to the policy; they are refused in
-      ``policy_kwargs``, so each is stated once;
-    - owns the p_ec schedule (``p_ec_schedule``; ``None``: :attr:`default_p_ec_schedule`) as CEC/MFEC own their
-      epsilon schedule, and draws each env's acting memory when its episode starts (``p_ec`` is the last draw's);
+    - takes the 2M settings as constructor arguments (each stated once: they are refused in ``policy_kwargs``) and
+      gives each to its one owner: the p_ec schedule, data sharing, ``ec_gamma`` and ``ec_update_truncated`` to the
+      :class:`TwoMemoryDispatcher` (:attr:`dispatcher`, which checks them), the score window and the subclass's EC
+      settings (``ec_kwargs``) to the policy;
+    - drives the dispatch: :attr:`dispatcher` draws each env's acting memory when its episode starts and finishes
+      every episode (``p_ec`` is the last draw's), from ``_setup_learn`` and ``_store_transition``, so ``learn``
+      needs no callback;
     - acts through the policy's per-env dispatch, with epsilon-greedy applied per env on both memories for
       Discrete actions (stock DQN draws one epsilon coin for the whole batch of envs);
     - keeps SB3's random warm-up (``learning_starts``) for RL-run episodes only: EC-run episodes act with the
       episodic memory from the first step, since EC has nothing to wait for;
     - tags every stored transition with the memory that collected it and, without data sharing, trains the RL
       memory on its own transitions only (:class:`~sb3_gcrl.two_memory.buffers.SourceTaggedReplayBuffer`);
-    - feeds each step to the policy, which updates the episodic memory and the score windows at episode ends;
-    - logs ``two_memory/*`` (:func:`record_two_memory_logs`).
+    - logs ``two_memory/*`` (:meth:`TwoMemoryDispatcher.record_logs`).
     """
 
     #: p_ec schedule used when none is given (the one place where each agent's default lives)
@@ -353,11 +448,14 @@ class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
     two_memory_policy_class: ClassVar[type[BasePolicy]]
     #: action space class this algorithm supports, and the 2M algorithm to use instead
     two_memory_action_space: ClassVar[tuple[type[spaces.Space], str] | None] = None
+    #: the dispatch of Algorithm 2 and the owner of its settings
+    dispatcher: TwoMemoryDispatcher
 
     def __init__(
         self,
         policy: Any,
         env: Any,
+        *,
         p_ec_schedule: PecSpec | None = None,
         data_sharing: bool = True,
         score_window: int = 50,
@@ -374,9 +472,10 @@ class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
         :param score_window: n of Eq. 5.6 (50).
         :param ec_gamma: discount of the returns stored in the episodic memory (``None``: ``gamma``).
         :param ec_update_truncated: also write time-limit-truncated episodes into the episodic memory.
-        :param ec_kwargs: the subclass's :attr:`ec_settings`, handed to the policy.
+        :param ec_kwargs: the subclass's EC settings (constructor arguments of its policy, see :meth:`policy_settings`),
+            handed to the policy.
         :param kwargs: the SB3 algorithm's arguments.
-        :raises ValueError: for an action space of the other 2M algorithm, a bad schedule or switch, a 2M / EC
+        :raises ValueError: for an action space of the other 2M algorithm, a bad schedule or setting, a 2M / EC
             setting given in ``policy_kwargs``, or ``n_steps > 1`` without a ``replay_buffer_class`` of the user's.
         """
         env = self._check_two_memory_action_space(env)
@@ -388,72 +487,66 @@ class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
                 "each transition with the memory that collected it (SourceTaggedReplayBuffer), which gives one-step "
                 "returns, and SB3 sets n-step returns up only in its own default buffer; leave n_steps=1"
             )
-        ec_kwargs = dict(ec_kwargs or {})
+        for_policy = {"score_window": score_window, **(ec_kwargs or {})}
         for name in ("policy_kwargs", "replay_buffer_kwargs"):
             if kwargs.get(name) is not None:
                 kwargs[name] = dict(kwargs[name])  # SB3 and the 2M set-up write into them: never the caller's
-        own = ("p_ec_schedule", "data_sharing", "score_window", "ec_gamma", "ec_update_truncated", *ec_kwargs)
-        for key in own:
-            if key in (kwargs.get("policy_kwargs") or {}):
+        policy_kwargs = kwargs.get("policy_kwargs") or {}
+        for key in ("p_ec_schedule", *TwoMemoryDispatcher.settings, *for_policy):
+            if key in policy_kwargs:
                 raise ValueError(f"pass {key} to {type(self).__name__} itself, not in policy_kwargs")
-        if p_ec_schedule is not None:
-            make_pec_schedule(p_ec_schedule)  # a bad spec fails here, naming the accepted forms
-        self.p_ec_schedule = p_ec_schedule
-        self.data_sharing = bool(data_sharing)
-        self.score_window = check_int("score_window", score_window)
-        self.ec_gamma = None if ec_gamma is None else check_unit_interval("ec_gamma", ec_gamma)
-        self.ec_update_truncated = bool(ec_update_truncated)
-        for name, value in ec_kwargs.items():
-            setattr(self, name, value)
-        #: names of the EC settings handed to the policy (constructor arguments of both)
-        self.ec_settings = tuple(ec_kwargs)
-        #: p_ec of the last draw (logged as ``two_memory/p_ec``)
-        self.p_ec = 0.0
+        dispatcher = TwoMemoryDispatcher(
+            self.default_p_ec_schedule if p_ec_schedule is None else p_ec_schedule,
+            data_sharing,
+            ec_gamma,
+            ec_update_truncated,
+        )
+        kwargs["policy_kwargs"] = {**policy_kwargs, **for_policy}
         init_setup_model = kwargs.pop("_init_setup_model", True)
         super().__init__(policy, env, _init_setup_model=False, **kwargs)  # type: ignore[call-arg]
+        dispatcher.use_gamma_by_default(self.gamma)  # type: ignore[attr-defined]
+        self.dispatcher = dispatcher
         if init_setup_model:
             self._setup_model()
 
+    @classmethod
+    def policy_settings(cls, arguments: dict[str, Any]) -> dict[str, Any]:
+        """The policy's settings among a subclass constructor's arguments (``locals()``): those named in the 2M
+        policy class's ``ec_parameters``, which the subclass takes under the same names.
+
+        :param arguments: the constructor's arguments by name.
+        :return: the settings to hand to the policy (``ec_kwargs``).
+        """
+        names = cls.two_memory_policy_class.ec_parameters  # type: ignore[attr-defined]
+        return {name: value for name, value in arguments.items() if name in names}
+
+    @property
+    def p_ec(self) -> float:
+        """p_ec of the last draw (logged as ``two_memory/p_ec``; saved with :attr:`dispatcher`)."""
+        return self.dispatcher.p_ec
+
     def _setup_model(self) -> None:
-        """Build the p_ec schedule, hand the 2M switches and EC settings to the policy, pick the replay buffer."""
+        """Check the policy class, pick the replay buffer by the data-sharing setting, build the SB3 model."""
         if not issubclass(self.policy_class, self.two_memory_policy_class):
             raise ValueError(
                 f"{type(self).__name__} needs a {self.two_memory_policy_class.__name__} (aliases "
                 f"{sorted(self.policy_aliases)}), got {self.policy_class.__name__}"
             )
-        self._p_ec_schedule = make_pec_schedule(
-            self.default_p_ec_schedule if self.p_ec_schedule is None else self.p_ec_schedule
-        )
-        self.policy_kwargs = {
-            **self.policy_kwargs,
-            "data_sharing": self.data_sharing,
-            "score_window": self.score_window,
-            "ec_gamma": self.gamma if self.ec_gamma is None else self.ec_gamma,
-            "ec_update_truncated": self.ec_update_truncated,
-            **{name: getattr(self, name) for name in self.ec_settings},
-        }
         self.replay_buffer_kwargs = dict(self.replay_buffer_kwargs)
-        self._two_memory_replay_kwargs(self.data_sharing)
+        self._two_memory_replay_kwargs(self.dispatcher.data_sharing)
         super()._setup_model()  # type: ignore[misc]
-        if self.num_timesteps == 0:  # (a loaded model keeps the p_ec of its last draw)
-            self.p_ec = current_p_ec(self._p_ec_schedule, 0, self.policy)
-
-    def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_p_ec_schedule"]  # type: ignore[misc]
 
     def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
         previous_obs = self._last_obs  # type: ignore[has-type]
         result = super()._setup_learn(*args, **kwargs)  # type: ignore[misc]
-        if self._last_obs is not previous_obs or self.policy.acting_memory.size != self.n_envs:
-            # the envs were reset: running episodes (if any) are gone
-            self.policy.reset_episodes(self.n_envs)
+        # (the envs were reset if the observation changed: their running episodes are gone)
+        self.dispatcher.start(self.policy, self.n_envs, self.num_timesteps, self._last_obs is not previous_obs)
         return result
 
     def _sample_action(
         self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
         policy = self.policy
-        memories, self.p_ec = draw_memories(self._p_ec_schedule, self.num_timesteps, policy, self.p_ec)
         # policy.predict() without its per-call set_training_mode (it walks every sub-module on each env step)
         if policy.training:
             policy.set_training_mode(False)
@@ -469,7 +562,7 @@ class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
             unscaled_action = action
         random_rows = np.zeros(n_envs, dtype=bool)
         if self.num_timesteps < learning_starts:
-            random_rows |= memories == PARAMETRIC
+            random_rows |= policy.acting_memory == PARAMETRIC
         if isinstance(self.action_space, spaces.Discrete):
             random_rows |= np.random.random(n_envs) < getattr(self, "exploration_rate", 0.0)
         if random_rows.any():
@@ -499,10 +592,17 @@ class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
         if isinstance(replay_buffer, SourceTaggedReplayBuffer):
             replay_buffer.next_sources[:] = self.policy.acting_memory
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)  # type: ignore[misc]
-        # the episodic memory stores actions as the policy outputs them (scaled to [-1, 1] for Box spaces)
-        finished = self.policy.record_step(observations, buffer_action, rewards, dones, truncated_ends(dones, infos))
-        if finished:
-            record_two_memory_logs(self.logger, self.policy, self.p_ec, replay_buffer)
+        self.dispatcher.step(
+            self.policy,
+            observations,
+            buffer_action,
+            rewards,
+            dones,
+            infos,
+            self.num_timesteps,
+            self.logger,
+            replay_buffer,
+        )
 
     def train(self, gradient_steps: int, batch_size: int | None = None) -> None:
         """The algorithm's training step, skipped while source filtering leaves nothing to sample (no data sharing,

@@ -22,8 +22,8 @@ from torch import nn
 
 from sb3_gcrl.common.actors import cec_actions, mfec_actions
 from sb3_gcrl.common.episodic_control import load_memory_state, memory_state
+from sb3_gcrl.common.validation import check_float
 from sb3_gcrl.memory import CECMemory, KeyEmbedding, MFECMemory
-from sb3_gcrl.memory.validation import check_float
 from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatchMixin
 
 
@@ -127,11 +127,7 @@ class TwoMemoryDQNPolicy(KeyedMemoryDispatchMixin, DQNPolicy):
     :param observation_space: observation space.
     :param action_space: Discrete action space.
     :param lr_schedule: learning rate schedule of the Q-network.
-    :param data_sharing: update MFEC with every episode (thesis) or only with its own (2Mw/oDS).
     :param score_window: n of Eq. 5.6.
-    :param ec_gamma: discount of the returns stored in MFEC (``None``: the algorithm's ``gamma``).
-    :param ec_update_truncated: also learn from time-limit-truncated episodes (thesis: every finished episode; see
-        ``TwoMemoryDispatchMixin``).
     :param ec_projection_dim: random-projection dimension of the MFEC keys (None: no projection).
     :param ec_capacity_per_action: rows per action table (None: authors' ``1e5 / (2 * n_actions)``).
     :param ec_n_neighbors: k of the MFEC estimate (Table 5.1: 3).
@@ -155,10 +151,7 @@ class TwoMemoryDQNPolicy(KeyedMemoryDispatchMixin, DQNPolicy):
         observation_space: spaces.Space,
         action_space: spaces.Discrete,
         lr_schedule: Schedule,
-        data_sharing: bool = True,
         score_window: int = 50,
-        ec_gamma: float | None = None,
-        ec_update_truncated: bool = True,
         ec_projection_dim: int | None = 8,
         ec_capacity_per_action: int | None = None,
         ec_n_neighbors: int = 3,
@@ -166,8 +159,9 @@ class TwoMemoryDQNPolicy(KeyedMemoryDispatchMixin, DQNPolicy):
         knn_backend: str = "auto",
         **kwargs: Any,
     ) -> None:
+        self.refuse_dispatcher_settings(kwargs, type(self).__name__)
         DQNPolicy.__init__(self, observation_space, action_space, lr_schedule, **kwargs)
-        self._init_dispatch(data_sharing, score_window, ec_gamma, ec_update_truncated)
+        self._init_dispatch(score_window)
         self._init_keyed_memory(ec_projection_dim, ec_seed, knn_backend)
         n_actions = int(action_space.n)
         if ec_capacity_per_action is None:
@@ -224,11 +218,7 @@ class TwoMemorySACPolicy(KeyedMemoryDispatchMixin, SACPolicy):
     :param observation_space: observation space (Box, or Dict for goal envs: observation + desired_goal keys).
     :param action_space: Box action space.
     :param lr_schedule: learning rate schedule of SAC.
-    :param data_sharing: update CEC with every episode or only with its own.
     :param score_window: n of Eq. 5.6.
-    :param ec_gamma: discount of the returns stored in CEC (``None``: the algorithm's ``gamma``).
-    :param ec_update_truncated: also learn from time-limit-truncated episodes (thesis Algorithm 1 / 2 and
-        standalone CEC: every finished episode; see ``TwoMemoryDispatchMixin``).
     :param ec_projection_dim: random-projection dimension of the CEC keys (None: none).
     :param ec_capacity: CEC rows.
     :param ec_distance_threshold: d of Table 4.4.
@@ -263,10 +253,7 @@ class TwoMemorySACPolicy(KeyedMemoryDispatchMixin, SACPolicy):
         observation_space: spaces.Space,
         action_space: spaces.Box,
         lr_schedule: Schedule,
-        data_sharing: bool = True,
         score_window: int = 50,
-        ec_gamma: float | None = None,
-        ec_update_truncated: bool = True,
         ec_projection_dim: int | None = None,
         ec_capacity: int = 100_000,
         ec_distance_threshold: float = 0.1,
@@ -279,8 +266,9 @@ class TwoMemorySACPolicy(KeyedMemoryDispatchMixin, SACPolicy):
         knn_backend: str = "auto",
         **kwargs: Any,
     ) -> None:
+        self.refuse_dispatcher_settings(kwargs, type(self).__name__)
         SACPolicy.__init__(self, observation_space, action_space, lr_schedule, **kwargs)
-        self._init_dispatch(data_sharing, score_window, ec_gamma, ec_update_truncated)
+        self._init_dispatch(score_window)
         self.ec_epsilon = check_float("ec_epsilon", ec_epsilon, 0.0, 1.0)
         self.ec_noise_std = check_float("ec_noise_std", ec_noise_std, 0.0)
         self._init_keyed_memory(ec_projection_dim, ec_seed, knn_backend)

@@ -11,11 +11,14 @@ taken so far and the :class:`ScoreWindows` of both memories. It returns p_ec in 
 
 from __future__ import annotations
 
+import inspect
 import math
 from abc import ABC, abstractmethod
 from typing import Any
 
 import numpy as np
+
+from sb3_gcrl.common.validation import check_float, check_int, check_unit_interval
 
 #: index of the episodic-control memory (2M-EC) in score windows and dispatch arrays
 EPISODIC = 0
@@ -38,9 +41,7 @@ class ScoreWindows:
     """
 
     def __init__(self, window: int = 50) -> None:
-        if window < 1:
-            raise ValueError(f"score window must be >= 1 episode, got {window}")
-        self.window = window
+        self.window = check_int("score_window", window)
         self.returns = np.zeros((2, window), dtype=np.float64)
         #: episodes ever pushed per memory (the ring position is ``count % window``)
         self.counts = np.zeros(2, dtype=np.int64)
@@ -83,22 +84,6 @@ class PecSchedule(ABC):
     def __call__(self, num_timesteps: int, scores: ScoreWindows) -> float: ...
 
 
-def check_unit_interval(name: str, value: Any, exclude_zero: bool = False) -> float:
-    """Check that ``value`` is a real number in [0, 1] (or (0, 1] with ``exclude_zero``) and return it as a float.
-
-    :param name: parameter name, used in the error message.
-    :param value: the value to check.
-    :param exclude_zero: also reject 0 (e.g. a learning rate, which would never change a table).
-    :raises ValueError: naming ``name`` if the check fails.
-    """
-    low = "(0" if exclude_zero else "[0"
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name} must be a number in {low}, 1], got {value!r}")
-    if not (0.0 <= value <= 1.0) or (exclude_zero and value == 0):  # NaN fails the comparison
-        raise ValueError(f"{name} must be a number in {low}, 1], got {value!r}")
-    return float(value)
-
-
 class ExponentialSchedule(PecSchedule):
     """Eq. 5.5: ``p_ec = end + (start - end) * exp(-num_timesteps / decay)``.
 
@@ -110,9 +95,7 @@ class ExponentialSchedule(PecSchedule):
     def __init__(self, start: float, end: float, decay: float) -> None:
         self.start = check_unit_interval("start", start)
         self.end = check_unit_interval("end", end)
-        if not decay > 0:
-            raise ValueError(f"decay (tau of Eq. 5.5, in env steps) must be > 0, got {decay}")
-        self.decay = float(decay)
+        self.decay = check_float("decay (tau of Eq. 5.5, in env steps)", decay, 0.0, exclusive_minimum=True)
 
     def __call__(self, num_timesteps: int, scores: ScoreWindows) -> float:
         return self.end + (self.start - self.end) * math.exp(-num_timesteps / self.decay)
@@ -167,12 +150,8 @@ class AdaptiveSchedule(PecSchedule):
         self.p_max = check_unit_interval("p_max", p_max)
         if self.p_min > self.p_max:
             raise ValueError(f"p_min ({p_min}) must be <= p_max ({p_max})")
-        if not temperature > 0:
-            raise ValueError(f"temperature must be > 0, got {temperature}")
-        if min_episodes < 1:
-            raise ValueError(f"min_episodes must be >= 1, got {min_episodes}")
-        self.temperature = float(temperature)
-        self.min_episodes = int(min_episodes)
+        self.temperature = check_float("temperature", temperature, 0.0, exclusive_minimum=True)
+        self.min_episodes = check_int("min_episodes", min_episodes)
         self.warmup_p_ec = check_unit_interval("warmup_p_ec", warmup_p_ec)
 
     def __call__(self, num_timesteps: int, scores: ScoreWindows) -> float:
@@ -190,38 +169,60 @@ class AdaptiveSchedule(PecSchedule):
         )
 
 
+#: the ``type`` of a dict spec of :func:`make_pec_schedule` -> the schedule class it builds
+SCHEDULE_TYPES: dict[str, type[PecSchedule]] = {
+    "decayed": ExponentialSchedule,
+    "increasing": ExponentialSchedule,
+    "exponential": ExponentialSchedule,
+    "constant": ConstantSchedule,
+    "adaptive": AdaptiveSchedule,
+}
+
+
+def _schedule_forms() -> str:
+    types = "|".join(f"'{kind}'" for kind in SCHEDULE_TYPES)
+    return f"pass a PecSchedule, a number in [0, 1] (constant), 'adaptive', or a dict {{'type': {types}, ...kwargs}}"
+
+
 def make_pec_schedule(spec: PecSchedule | float | str | dict[str, Any]) -> PecSchedule:
     """Build a p_ec schedule from a YAML/CLI-friendly spec.
 
-    Accepted: a :class:`PecSchedule`; a float (constant); ``"adaptive"``; or a dict with ``type`` in
-    ``decayed | increasing | exponential | constant | adaptive`` plus the class's kwargs, e.g.
-    ``{"type": "decayed", "start": 0.5, "end": 0.1, "decay": 5e5}``. ``decayed`` requires start >= end and
-    ``increasing`` start <= end, so a swapped pair is caught.
+    Accepted: a :class:`PecSchedule`; a number (constant); ``"adaptive"``; or a dict with ``type`` in
+    :data:`SCHEDULE_TYPES` plus the class's kwargs, e.g. ``{"type": "decayed", "start": 0.5, "end": 0.1,
+    "decay": 5e5}``. ``decayed`` requires start >= end and ``increasing`` start <= end, so a swapped pair is caught.
 
     :param spec: the schedule specification.
     :return: the schedule.
+    :raises ValueError: naming the accepted forms (an unknown ``type`` lists the valid ones, a wrong key lists the
+        class's arguments), or a value out of range.
     """
     if isinstance(spec, PecSchedule):
         return spec
-    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
+    if isinstance(spec, (int, float, np.integer, np.floating)) and not isinstance(spec, bool):
         return ConstantSchedule(float(spec))
-    if spec == "adaptive":
+    if isinstance(spec, str) and spec == "adaptive":
         return AdaptiveSchedule()
-    if isinstance(spec, dict):
-        kwargs = dict(spec)
-        kind = kwargs.pop("type", None)
-        if kind in ("decayed", "increasing", "exponential"):
-            schedule = ExponentialSchedule(**kwargs)
-            if kind == "decayed" and schedule.start < schedule.end:
-                raise ValueError(f"a decayed p_ec schedule needs start >= end, got {spec}; use type 'increasing'")
-            if kind == "increasing" and schedule.start > schedule.end:
-                raise ValueError(f"an increasing p_ec schedule needs start <= end, got {spec}; use type 'decayed'")
-            return schedule
-        if kind == "constant":
-            return ConstantSchedule(**kwargs)
-        if kind == "adaptive":
-            return AdaptiveSchedule(**kwargs)
-    raise ValueError(
-        f"Cannot build a p_ec schedule from {spec!r}: pass a PecSchedule, a float, 'adaptive', or a dict "
-        "{'type': 'decayed'|'increasing'|'constant'|'adaptive', ...kwargs}"
-    )
+    if not isinstance(spec, dict):
+        raise ValueError(f"Cannot build a p_ec schedule from {spec!r}: {_schedule_forms()}")
+    kwargs = dict(spec)
+    kind = kwargs.pop("type", None)
+    if kind not in SCHEDULE_TYPES:
+        raise ValueError(
+            f"Cannot build a p_ec schedule from {spec!r}: unknown type {kind!r}, valid types are "
+            f"{', '.join(SCHEDULE_TYPES)}"
+        )
+    schedule_class = SCHEDULE_TYPES[kind]
+    signature = inspect.signature(schedule_class)
+    try:
+        signature.bind(**kwargs)
+    except TypeError as error:
+        raise ValueError(
+            f"Cannot build a p_ec schedule from {spec!r}: type {kind!r} takes {', '.join(signature.parameters)} "
+            f"({error})"
+        ) from None
+    schedule = schedule_class(**kwargs)
+    if kind == "decayed" and schedule.start < schedule.end:  # type: ignore[attr-defined]
+        raise ValueError(f"a decayed p_ec schedule needs start >= end, got {spec}; use type 'increasing'")
+    if kind == "increasing" and schedule.start > schedule.end:  # type: ignore[attr-defined]
+        raise ValueError(f"an increasing p_ec schedule needs start <= end, got {spec}; use type 'decayed'")
+    return schedule

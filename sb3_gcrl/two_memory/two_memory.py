@@ -8,7 +8,7 @@ from gymnasium import spaces
 from stable_baselines3 import DQN, SAC
 from stable_baselines3.common.policies import BasePolicy
 
-from sb3_gcrl.two_memory.dispatch import PecSpec, TwoMemoryAlgorithmMixin
+from sb3_gcrl.two_memory.dispatch import TwoMemoryAlgorithmMixin
 from sb3_gcrl.two_memory.policies import (
     TwoMemoryDQNPolicy,
     TwoMemoryMinAtarPolicy,
@@ -33,19 +33,16 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
 
     :param policy: policy class or alias.
     :param env: env with a Discrete action space.
-    :param p_ec_schedule: p_ec schedule, see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`. ``None``:
-        :attr:`default_p_ec_schedule`, Eq. 5.5 with the thesis's decayed schedule 0.9 -> 0.1 (Table 5.1,
-        Sec. 5.5.3) and decay 5e5 env steps.
-    :param data_sharing: share all data between both memories (thesis Sec. 5.4.3).
-    :param score_window: n of Eq. 5.6 (50).
-    :param ec_gamma: discount of the returns stored in MFEC (None: ``gamma``).
-    :param ec_update_truncated: also write time-limit-truncated episodes into MFEC (thesis: every finished episode).
     :param ec_projection_dim: random-projection dimension of the MFEC keys (authors: 8; None: raw observations).
     :param ec_capacity_per_action: rows per MFEC action table (None: authors' ``1e5 / (2 * n_actions)``).
     :param ec_n_neighbors: k of the MFEC estimate (Table 5.1: 3).
     :param knn_backend: kNN backend of the MFEC tables (see :class:`~sb3_gcrl.memory.KNNIndex`).
-    :param kwargs: every :class:`~stable_baselines3.DQN` argument; ``n_steps`` only 1 (the replay buffer that tags
-        each transition's source gives one-step returns; n-step returns are not implemented in it).
+    :param kwargs: the 2M settings (see :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryAlgorithmMixin`):
+        ``p_ec_schedule`` (``None``: :attr:`default_p_ec_schedule`, Eq. 5.5 with the thesis's decayed schedule
+        0.9 -> 0.1 of Table 5.1 / Sec. 5.5.3 and decay 5e5 env steps), ``data_sharing`` (thesis Sec. 5.4.3),
+        ``score_window`` (n of Eq. 5.6, 50), ``ec_gamma`` (discount of the MFEC returns, ``None``: ``gamma``),
+        ``ec_update_truncated`` (also write cut episodes into MFEC); and every :class:`~stable_baselines3.DQN`
+        argument, ``n_steps`` only 1 (the replay buffer that tags each transition's source gives one-step returns).
     :raises ValueError: for a non-Discrete action space (use :class:`TwoMemorySAC`), a 2M or EC setting given in
         ``policy_kwargs``, or ``n_steps > 1``.
     """
@@ -63,26 +60,14 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
         self,
         policy: str | type[TwoMemoryDQNPolicy],
         env: Any,
-        p_ec_schedule: PecSpec | None = None,
-        data_sharing: bool = True,
-        score_window: int = 50,
-        ec_gamma: float | None = None,
-        ec_update_truncated: bool = True,
+        *,
         ec_projection_dim: int | None = 8,
         ec_capacity_per_action: int | None = None,
         ec_n_neighbors: int = 3,
         knn_backend: str = "auto",
         **kwargs: Any,
     ) -> None:
-        ec_kwargs = dict(
-            ec_projection_dim=ec_projection_dim,
-            ec_capacity_per_action=ec_capacity_per_action,
-            ec_n_neighbors=ec_n_neighbors,
-            knn_backend=knn_backend,
-        )
-        super().__init__(
-            policy, env, p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated, ec_kwargs, **kwargs
-        )
+        super().__init__(policy, env, ec_kwargs=self.policy_settings(locals()), **kwargs)
 
 
 class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
@@ -95,12 +80,6 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
 
     :param policy: policy class or alias (``"MlpPolicy"``, ``"MultiInputPolicy"``).
     :param env: env with a Box action space.
-    :param p_ec_schedule: p_ec schedule. ``None``: :attr:`default_p_ec_schedule`, Eq. 5.5 with 0.9 -> 0.1 (Table
-        5.1's decayed schedule) and decay 5e4 steps (ours: scaled to the 1e5-step budgets of Ch. 4's tasks).
-    :param data_sharing: share all data between both memories.
-    :param score_window: n of Eq. 5.6.
-    :param ec_gamma: discount of the returns stored in CEC (None: ``gamma``).
-    :param ec_update_truncated: also write time-limit-truncated episodes into CEC (thesis: every finished episode).
     :param ec_projection_dim: random-projection dimension of the CEC keys (None: raw observations).
     :param ec_capacity: CEC rows.
     :param ec_distance_threshold: d of Table 4.4.
@@ -110,8 +89,9 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
     :param ec_epsilon: epsilon of Algorithm 1: probability of Gaussian noise on an EC action while training.
     :param ec_noise_std: sigma of Algorithm 1: std of that noise, in [-1, 1] action units.
     :param knn_backend: kNN backend of the CEC memory.
-    :param kwargs: every :class:`~stable_baselines3.SAC` argument; ``n_steps`` only 1 (the replay buffer that tags
-        each transition's source gives one-step returns; n-step returns are not implemented in it).
+    :param kwargs: the 2M settings, as for :class:`TwoMemoryDQN` (``p_ec_schedule`` ``None``:
+        :attr:`default_p_ec_schedule`, Eq. 5.5 with 0.9 -> 0.1 and decay 5e4 steps, ours: scaled to the 1e5-step
+        budgets of Ch. 4's tasks); and every :class:`~stable_baselines3.SAC` argument, ``n_steps`` only 1.
     :raises ValueError: for a non-Box action space (use :class:`TwoMemoryDQN`), ``use_sde=True``, ``n_steps > 1``,
         or a 2M or EC setting given in ``policy_kwargs``.
     """
@@ -129,11 +109,7 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
         self,
         policy: str | type[TwoMemorySACPolicy],
         env: Any,
-        p_ec_schedule: PecSpec | None = None,
-        data_sharing: bool = True,
-        score_window: int = 50,
-        ec_gamma: float | None = None,
-        ec_update_truncated: bool = True,
+        *,
         ec_projection_dim: int | None = None,
         ec_capacity: int = 100_000,
         ec_distance_threshold: float = 0.1,
@@ -145,20 +121,7 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
         knn_backend: str = "auto",
         **kwargs: Any,
     ) -> None:
-        ec_kwargs = dict(
-            ec_projection_dim=ec_projection_dim,
-            ec_capacity=ec_capacity,
-            ec_distance_threshold=ec_distance_threshold,
-            ec_filter_factor=ec_filter_factor,
-            ec_n_neighbors=ec_n_neighbors,
-            ec_temperature=ec_temperature,
-            ec_epsilon=ec_epsilon,
-            ec_noise_std=ec_noise_std,
-            knn_backend=knn_backend,
-        )
-        super().__init__(
-            policy, env, p_ec_schedule, data_sharing, score_window, ec_gamma, ec_update_truncated, ec_kwargs, **kwargs
-        )
+        super().__init__(policy, env, ec_kwargs=self.policy_settings(locals()), **kwargs)
 
     def _setup_model(self) -> None:
         if self.use_sde:
