@@ -130,6 +130,19 @@ def test_relabeling_proportions(alpha: float) -> None:
     assert np.all(np.abs(replayed) <= 1.0)  # the standard 'future' strategy: achieved goals of the episode
 
 
+def test_task_relevant_relabeling_is_reproducible_under_the_env_seed() -> None:
+    """The alpha/2 + alpha/2 draws come from the env's generator, seeded by SB3's seed (make_vec_env(seed=0) seeds
+    the envs and their action spaces): same seed, same relabeled goals."""
+    batch, envs = np.arange(10, 90), np.zeros(80, dtype=np.int64)
+    draws = []
+    for _ in range(2):
+        buffer = filled_buffer(0.6)
+        np.random.seed(0)  # SB3's own HER draws ("future" goals) use numpy's global generator
+        draws.append(buffer._sample_goals(batch, envs))
+    np.testing.assert_array_equal(draws[0], draws[1])
+    assert np.any(np.abs(draws[0]) == 100.0)  # task-relevant goals among them
+
+
 def test_relabeled_rewards_use_the_task_goals() -> None:
     buffer = filled_buffer(1.0)
     np.random.seed(0)
