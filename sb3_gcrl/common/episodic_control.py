@@ -30,10 +30,10 @@ from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import LinearSchedule, safe_mean
 
+from sb3_gcrl.common.episodes import EpisodeRecorder
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.validation import check_choice, check_finite_rewards, check_float, check_int, check_optional_int
 from sb3_gcrl.memory.embedding import KeyEmbedding
-from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
 from sb3_gcrl.memory.knn import KNN_BACKENDS, KNNBackend
 
 SelfEpisodicControlAlgorithm = TypeVar("SelfEpisodicControlAlgorithm", bound="EpisodicControlAlgorithm")
@@ -365,7 +365,7 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
         self.policy = self.policy_class(self.observation_space, self.action_space, **kwargs)
         self.policy.set_seed(self.seed)
         self.policy.exploration_rate = self.exploration_rate
-        self._episode_buffers: EpisodeBuffers | None = None
+        self._episodes = EpisodeRecorder(initial_length=1024)
         self._reset_memory_stats()
 
     def set_random_seed(self, seed: int | None = None) -> None:
@@ -426,7 +426,7 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
         )
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_episode_buffers", "exploration_schedule", "_pending_env_seed"]
+        return [*super()._excluded_save_params(), "_episodes", "exploration_schedule", "_pending_env_seed"]
 
     def _reset_memory_stats(self) -> None:
         self._n_queries = 0
@@ -445,14 +445,8 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
         total_timesteps, callback = super()._setup_learn(
             total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
         )
-        assert self.env is not None
-        if self._episode_buffers is None or reset_num_timesteps or not had_obs:
-            # the envs were (re)set: running episodes start from scratch
-            action_shape = self.action_space.shape if isinstance(self.action_space, spaces.Box) else ()
-            action_dtype = np.float32 if isinstance(self.action_space, spaces.Box) else np.int64
-            self._episode_buffers = EpisodeBuffers(
-                self.env.num_envs, self.policy.embedding.key_dim, action_shape, action_dtype, initial_length=1024
-            )
+        if reset_num_timesteps or not had_obs:  # the envs were (re)set: running episodes start from scratch
+            self._episodes.reset()
         return total_timesteps, callback
 
     def learn(
@@ -479,9 +473,8 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
             total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
         )
         callback.on_training_start(locals(), globals())
-        assert self.env is not None and self._episode_buffers is not None and self._last_obs is not None
+        assert self.env is not None and self._last_obs is not None
         n_envs = self.env.num_envs
-        buffers = self._episode_buffers
         embed = self.policy.embedding
 
         # a "rollout" (SB3's on_rollout_start/end) is the collection between two memory updates
@@ -502,7 +495,7 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
             self.num_timesteps += n_envs
             self._n_queries += n_envs
             self._n_hits += int(hits.sum())
-            buffers.add(keys, actions, rewards)
+            finished = self._episodes.record(keys, actions, rewards, dones, infos)
 
             callback.update_locals(locals())
             if not callback.on_step():
@@ -510,9 +503,8 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
             self._update_info_buffer(infos, dones)
             if dones.any():
                 callback.on_rollout_end()
-            for env_idx in np.flatnonzero(dones):
-                ep_keys, ep_actions, ep_rewards = buffers.pop(int(env_idx))
-                counts = self._update_memory(ep_keys, ep_actions, discounted_returns(ep_rewards, self.gamma))
+            for episode in finished:
+                counts = self._update_memory(episode.keys, episode.actions, episode.returns(self.gamma))
                 for name, count in counts.items():
                     self._memory_counts[name] = self._memory_counts.get(name, 0) + count
                 self._episode_num += 1

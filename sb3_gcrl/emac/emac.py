@@ -17,14 +17,13 @@ from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 from torch.nn import functional as F
 
+from sb3_gcrl.common.episodes import EpisodeRecorder
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.validation import check_choice, check_float, check_int, check_optional_int
 from sb3_gcrl.emac.memory import NEIGHBOUR_WEIGHTINGS, NeighbourWeighting
 from sb3_gcrl.emac.policies import EMACPolicy, MultiInputEMACPolicy
-from sb3_gcrl.memory.episode import EpisodeBuffers, discounted_returns
 from sb3_gcrl.memory.knn import KNN_BACKENDS, KNNBackend
-from sb3_gcrl.two_memory.dispatch import truncated_ends
 
 
 class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
@@ -37,9 +36,9 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
     ``Q_M(s, a)`` is the memory estimate: the ``k`` nearest rows of a memory of (random projection of (s, a),
     discounted Monte-Carlo return) pairs, weighted by softmin of their distance (authors' code; ``"uniform"``: plain
     mean); see :mod:`sb3_gcrl.emac.memory`. Every finished episode writes each of its steps into the memory, with the
-    return discounted by ``gamma``, through the package's episode layer (:class:`~sb3_gcrl.memory.EpisodeBuffers`,
-    :func:`~sb3_gcrl.memory.discounted_returns`). While the memory is still empty the critic loss is the plain TD
-    loss. The actor is DDPG's (maximise ``Q_1(s, mu(s))``); acting and ``predict`` use the actor only.
+    return discounted by ``gamma``, through the package's episode layer
+    (:class:`~sb3_gcrl.common.episodes.EpisodeRecorder`). While the memory is still empty the critic loss is the plain
+    TD loss. The actor is DDPG's (maximise ``Q_1(s, mu(s))``); acting and ``predict`` use the actor only.
 
     Base algorithm: the paper builds EMAC on DDPG (thesis Sec. 4.3: "EMAC combines values from the EM with 1-step TD
     target in DDPG"). SB3's DDPG is TD3 with one critic, no delayed policy update and no target smoothing, so EMAC
@@ -124,7 +123,7 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
                 "EMAC cannot use a HerReplayBuffer: its memory holds the returns of the goals that were commanded, "
                 "so a relabeled sample would be regressed onto the return of another goal; use the default buffer"
             )
-        self._episode_buffers: EpisodeBuffers | None = None
+        self._episodes = EpisodeRecorder()
         super().__init__(
             policy,
             env,
@@ -155,7 +154,7 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
         super()._setup_model()
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_episode_buffers"]
+        return [*super()._excluded_save_params(), "_episodes"]
 
     def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
         previous_obs = self._last_obs  # type: ignore[has-type]
@@ -166,12 +165,8 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
                 "EMAC's memory stores Monte-Carlo returns of the env's rewards, which VecNormalize(norm_reward=True) "
                 "rescales with changing statistics before the critic sees them; use norm_reward=False"
             )
-        if self._episode_buffers is None or self._last_obs is not previous_obs:
-            # the envs were (re)set: running episodes start from scratch
-            assert self.env is not None
-            self._episode_buffers = EpisodeBuffers(
-                self.env.num_envs, self.policy.memory_embedding.key_dim, self.action_space.shape
-            )
+        if self._last_obs is not previous_obs:  # the envs were (re)set: running episodes start from scratch
+            self._episodes.reset()
         return result
 
     def _store_transition(
@@ -187,14 +182,9 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
         # on in the call below) and the action scaled to [-1, 1]
         keys = self.policy.memory_keys(self._last_obs, buffer_action)  # type: ignore[arg-type]
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
-        assert self._episode_buffers is not None
-        self._episode_buffers.add(keys, buffer_action, reward)
-        truncated = truncated_ends(dones, infos)
-        for env_index in np.flatnonzero(dones):
-            episode_keys, _, rewards = self._episode_buffers.pop(int(env_index))
-            if truncated[env_index] and not self.memory_update_truncated:
-                continue
-            self.policy.memory.add_episode(episode_keys, discounted_returns(rewards, self.gamma))
+        for episode in self._episodes.record(keys, buffer_action, reward, dones, infos):
+            if episode.updates_memory(self.memory_update_truncated):
+                self.policy.memory.add_episode(episode.keys, episode.returns(self.gamma))
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         """TD3's training step (SB3) with EMAC's critic loss.
