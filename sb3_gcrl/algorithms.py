@@ -12,20 +12,21 @@ import importlib
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 #: name used with ``--algo`` -> ``"module:Class"``
-ALGORITHMS: dict[str, str] = {}
-ALGORITHMS["two_memory_dqn"] = "sb3_gcrl.two_memory:TwoMemoryDQN"
-ALGORITHMS["two_memory_sac"] = "sb3_gcrl.two_memory:TwoMemorySAC"
-ALGORITHMS["cec"] = "sb3_gcrl.cec:CEC"
-ALGORITHMS["mfec"] = "sb3_gcrl.mfec:MFEC"
-ALGORITHMS["tabular_q"] = "sb3_gcrl.tabular:TabularQLearning"
-ALGORITHMS["tabular_ec"] = "sb3_gcrl.tabular:TabularEpisodicControl"
-ALGORITHMS["tabular_2m"] = "sb3_gcrl.tabular:TabularTwoMemory"
-ALGORITHMS["imgep"] = "sb3_gcrl.imgep:TabularIMGEP"
-ALGORITHMS["morefree"] = "sb3_gcrl.morefree:MoReFree"
-ALGORITHMS["emac"] = "sb3_gcrl.emac:EMAC"
-ALGORITHMS["medal"] = "sb3_gcrl.reset_free_baselines:MEDAL"
-ALGORITHMS["r3l"] = "sb3_gcrl.reset_free_baselines:R3L"
-ALGORITHMS["ibc"] = "sb3_gcrl.reset_free_baselines:IBC"
+ALGORITHMS: dict[str, str] = {
+    "two_memory_dqn": "sb3_gcrl.two_memory:TwoMemoryDQN",
+    "two_memory_sac": "sb3_gcrl.two_memory:TwoMemorySAC",
+    "cec": "sb3_gcrl.cec:CEC",
+    "mfec": "sb3_gcrl.mfec:MFEC",
+    "tabular_q": "sb3_gcrl.tabular:TabularQLearning",
+    "tabular_ec": "sb3_gcrl.tabular:TabularEpisodicControl",
+    "tabular_2m": "sb3_gcrl.tabular:TabularTwoMemory",
+    "imgep": "sb3_gcrl.imgep:TabularIMGEP",
+    "morefree": "sb3_gcrl.morefree:MoReFree",
+    "emac": "sb3_gcrl.emac:EMAC",
+    "medal": "sb3_gcrl.reset_free_baselines:MEDAL",
+    "r3l": "sb3_gcrl.reset_free_baselines:R3L",
+    "ibc": "sb3_gcrl.reset_free_baselines:IBC",
+}
 
 
 def load_algorithm(name: str) -> type[BaseAlgorithm]:
