@@ -12,6 +12,7 @@ from test_wrappers import LineGoalEnv
 
 from sb3_gcrl.common import validation
 from sb3_gcrl.common.validation import (
+    check_bool,
     check_choice,
     check_finite_returns,
     check_finite_rewards,
@@ -70,6 +71,13 @@ def test_check_unit_interval_can_exclude_zero() -> None:
     assert check_unit_interval("gamma", np.float32(0.5)) == 0.5 and check_unit_interval("gamma", 0) == 0.0
     with pytest.raises(ValueError, match=r"^learning_rate must be a number in \(0, 1\], got 0$"):
         check_unit_interval("learning_rate", 0, exclude_zero=True)
+
+
+def test_check_bool_refuses_strings_and_numbers() -> None:
+    assert check_bool("memory_update_truncated", np.bool_(False)) is False
+    for value in ("false", 0, None):
+        with pytest.raises(ValueError, match=rf"^post_exploration must be True or False, got {value!r}$"):
+            check_bool("post_exploration", value)
 
 
 def test_check_choice_lists_the_choices() -> None:

@@ -7,7 +7,7 @@ construction with the same message wherever it enters (``CEC(capacity=1.7)``, ``
 with it.
 
 * numbers: :func:`check_int`, :func:`check_optional_int`, :func:`check_float`, :func:`check_unit_interval`;
-* names: :func:`check_choice`;
+* switches and names: :func:`check_bool`, :func:`check_choice`;
 * HER: :func:`check_n_sampled_goal`;
 * data: :func:`check_finite_rewards`, :func:`check_finite_returns`, :func:`check_saved_rows`.
 """
@@ -102,6 +102,19 @@ def check_unit_interval(name: str, value: Any, exclude_zero: bool = False) -> fl
         return check_float(name, value, 0.0, 1.0, exclusive_minimum=exclude_zero)
     except (TypeError, ValueError) as error:
         raise ValueError(f"{name} must be a number in {'(0' if exclude_zero else '[0'}, 1], got {value!r}") from error
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """Return ``value`` as a ``bool`` after checking that it is one (``"false"`` from a command line would be true).
+
+    :param name: parameter name used in the error message.
+    :param value: the value to check.
+    :return: ``value`` as a Python ``bool``.
+    :raises ValueError: naming ``name``, for anything but ``True`` / ``False``.
+    """
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
 
 
 def _one_of(choices: Collection[Any]) -> str:

@@ -20,7 +20,7 @@ from torch.nn import functional as F
 from sb3_gcrl.common.episodes import EpisodeRecorder
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
-from sb3_gcrl.common.validation import check_choice, check_float, check_int, check_optional_int
+from sb3_gcrl.common.validation import check_bool, check_choice, check_float, check_int, check_optional_int
 from sb3_gcrl.emac.memory import NEIGHBOUR_WEIGHTINGS, NeighbourWeighting
 from sb3_gcrl.emac.policies import EMACPolicy, MultiInputEMACPolicy
 from sb3_gcrl.memory.knn import KNN_BACKENDS, KNNBackend
@@ -110,7 +110,7 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
         self.memory_capacity = check_int("memory_capacity", memory_capacity)
         self.neighbour_weighting = check_choice("neighbour_weighting", neighbour_weighting, NEIGHBOUR_WEIGHTINGS)
         self.observation_keys = None if observation_keys is None else list(observation_keys)
-        self.memory_update_truncated = bool(memory_update_truncated)
+        self.memory_update_truncated = check_bool("memory_update_truncated", memory_update_truncated)
         self.knn_backend = check_choice("knn_backend", knn_backend, KNN_BACKENDS)
         policy_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})  # never the caller's dict
         for name in ("memory_capacity", "n_neighbors", "projection_dim", "neighbour_weighting", "observation_keys"):

@@ -30,7 +30,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_gcrl.common.metrics import coverage, visitation_entropy
 from sb3_gcrl.common.saving import ModelFileMixin
-from sb3_gcrl.common.validation import check_float, check_unit_interval
+from sb3_gcrl.common.validation import check_bool, check_float, check_unit_interval
 from sb3_gcrl.goals.goal_space import BinnedGoalSpace
 from sb3_gcrl.imgep.policies import TabularGoalPolicy
 from sb3_gcrl.imgep.tabular_goal_env import TabularGoalEnv
@@ -128,7 +128,7 @@ class TabularIMGEP(ModelFileMixin, BaseAlgorithm, GoalExplorationAgent):
         self.gamma = float(gamma)
         self.epsilon = float(epsilon)
         self.tau = float(tau)
-        self.post_exploration = bool(post_exploration)
+        self.post_exploration = check_bool("post_exploration", post_exploration)
         self.post_exploration_rule = post_exploration_rule or ProportionalSteps(0.5)
         self.relabel_fraction = float(relabel_fraction)
         self.goal_space: BinnedGoalSpace | None = None

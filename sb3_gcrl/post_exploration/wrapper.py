@@ -31,6 +31,7 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 
+from sb3_gcrl.common.validation import check_bool
 from sb3_gcrl.goals.goal_space import BinnedGoalSpace
 from sb3_gcrl.goals.schedulers import GoalScheduler
 from sb3_gcrl.post_exploration.rules import NoveltyAdaptive, PostExplorationRule, make_post_exploration_rule
@@ -92,7 +93,7 @@ class PostExplorationWrapper(GoalCommandWrapper):
         if not isinstance(rule, PostExplorationRule):
             raise TypeError(f"rule must be a PostExplorationRule, got {type(rule).__name__}")
         self.rule = rule
-        self.post_exploration = bool(post_exploration)
+        self.post_exploration = check_bool("post_exploration", post_exploration)
         self.goal_space: BinnedGoalSpace | None = getattr(self.scheduler, "goal_space", None)
         if self.goal_space is None and isinstance(rule, NoveltyAdaptive):
             raise ValueError(
