@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import ast
+import graphlib
 import importlib
 import pkgutil
 from pathlib import Path
@@ -93,3 +94,34 @@ def test_the_metrics_keep_their_post_exploration_and_analysis_paths() -> None:
     from sb3_gcrl.post_exploration.metrics import visitation_entropy as from_metrics_module
 
     assert from_analysis is visitation_entropy is from_metrics_module and from_post_exploration is coverage
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE_ROOT.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def test_the_module_import_graph_has_no_cycle() -> None:
+    """Every import arrow between the package's modules points down: the graph has a topological order (imports
+    inside functions count too). A cycle is reported as the chain of modules that closes it."""
+    paths = sorted(PACKAGE_ROOT.rglob("*.py"))
+    modules = {module_name(path) for path in paths}
+
+    def owner(name: str) -> str | None:  # `from a.b import c` names module a.b, or a.b.c when c is a module
+        while name and name not in modules:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph = {
+        module_name(path): {target for name in imported_modules(path) if (target := owner(name))} - {module_name(path)}
+        for path in paths
+    }
+    try:
+        tuple(graphlib.TopologicalSorter(graph).static_order())
+    except graphlib.CycleError as error:
+        pytest.fail(f"import cycle: {' -> '.join(error.args[1])}")
+
+
+def test_the_cycle_check_sees_a_cycle() -> None:
+    with pytest.raises(graphlib.CycleError):
+        tuple(graphlib.TopologicalSorter({"a": {"b"}, "b": {"a"}}).static_order())
