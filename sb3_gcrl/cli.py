@@ -4,10 +4,11 @@
 ``rl_zoo3 train`` flag works. Before handing over, this launcher adds the package's algorithms to the
 zoo's algorithm table (``rl_zoo3.utils.ALGOS``, the dict that both scripts read), because a package
 imported through ``--gym-packages`` comes too late: the zoo fixes ``--algo`` choices when it builds its
-parser. When ``--algo`` names one of our algorithms and no ``-conf`` is given, the hyperparameters are
-read from the shipped ``zoo_configs/<algo>.yml`` instead of the zoo's own (which has none for them), and
-``-conf`` also takes the name of a shipped config (``sb3-gcrl list-configs``). A ``-conf`` section (with the
-``-params`` overrides) whose keys the algorithm does not take is refused before training, with close matches.
+parser. ``train`` finds the hyperparameters as ``sb3-gcrl compare`` does (:func:`~sb3_gcrl.zoo_config.resolve_config`):
+the ``-conf`` file (a path or a shipped config's name, ``sb3-gcrl list-configs``), else the shipped
+``zoo_configs/<algo>.yml``, then ``<algo>_thesis.yml``, then RL-Zoo's own ``hyperparams/<algo>.yml``; ``--variant NAME``
+picks the section ``<env id>@NAME`` instead of the env's own. A section (with the ``-params`` overrides) whose keys
+the algorithm does not take is refused before training, with close matches.
 """
 
 from __future__ import annotations
@@ -16,12 +17,17 @@ import importlib
 import itertools
 import os
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-#: the zoo configs this package ships (package data; a clone also has them as ``zoo_configs/`` at its root)
-ZOO_CONFIGS_DIR = Path(__file__).resolve().parent / "zoo_configs"
+from sb3_gcrl.zoo_config import ZOO_CONFIGS_DIR, shipped_config
+
+if TYPE_CHECKING:
+    from sb3_gcrl.zoo_config import ResolvedConfig
+
+__all__ = ["ZOO_CONFIGS_DIR", "main", "register_zoo_algorithms", "shipped_config"]
 
 #: sub-command -> ``"module:function"`` taking ``argv`` (list of strings) and returning an exit code
 COMMANDS: dict[str, str] = {
@@ -42,7 +48,8 @@ commands:
   compare     compare methods x envs x seeds and write curves, plots, a table and a report
   list-envs   print the registered GCRL/ environments with their spaces
   list-algos  print the algorithms `--algo` accepts
-  list-configs  print the zoo configs this package ships (`-conf NAME` takes these names)
+  list-configs  print the zoo configs this package ships, their env sections and variants (`-conf NAME` takes
+              these names, `--variant NAME` the variants)
 
 `sb3-gcrl <command> --help` shows the options of a command.
 """
@@ -72,61 +79,58 @@ def _option_value(argv: Sequence[str], *flags: str) -> str | None:
     return None
 
 
-def shipped_config(name: str) -> Path | None:
-    """The config this package ships under ``name`` (``"cec"``, ``"cec.yml"``), or None.
-
-    :param name: file name in :data:`ZOO_CONFIGS_DIR`, with or without ``.yml``.
-    :return: its path, if there is such a file.
-    """
-    for candidate in (name, f"{name}.yml"):
-        path = ZOO_CONFIGS_DIR / candidate
-        if Path(candidate).name == candidate and path.is_file():
-            return path
-    return None
-
-
-def _with_default_config(argv: list[str]) -> list[str]:
-    """Resolve ``-conf``: a shipped config may be named without its path (``-conf reset_free_tabletop_morefree``),
-    and our algorithms default to the shipped ``<algo>.yml`` when no ``-conf`` is given."""
-    from sb3_gcrl.algorithms import ALGORITHMS
-
+def _take_option(argv: Sequence[str], *flags: str) -> tuple[list[str], str | None]:
+    """``argv`` without the first of ``flags`` and its value (``--flag value`` or ``--flag=value``), and the value."""
     for i, arg in enumerate(argv):
-        flag, _, inline = arg.partition("=")
-        if flag not in ("-conf", "--conf-file"):
-            continue
-        value = inline if inline else (argv[i + 1] if i + 1 < len(argv) else None)
-        if value is None or Path(value).is_file() or value.endswith(".py"):
-            return argv  # a file of the user's (or RL-Zoo's own error for a missing value)
-        shipped = shipped_config(value)
-        if shipped is None:
-            raise SystemExit(
-                f"sb3-gcrl: -conf {value}: no such file, and no shipped config of that name; "
-                f"the shipped ones are listed by `sb3-gcrl list-configs` (folder {ZOO_CONFIGS_DIR})"
-            )
-        return [*argv[:i], flag, str(shipped), *argv[i + (1 if inline else 2) :]]
-    algo = _option_value(argv, "--algo")
-    if algo not in ALGORITHMS:
-        return argv
-    config = shipped_config(algo)
-    if config is None:
-        raise SystemExit(
-            f"sb3-gcrl: no hyperparameters for --algo {algo}: pass `-conf <file.yml>` (expected a default "
-            f"{algo}.yml in {ZOO_CONFIGS_DIR})"
-        )
-    return [*argv, "-conf", str(config)]
+        for flag in flags:
+            if arg == flag and i + 1 < len(argv):
+                return [*argv[:i], *argv[i + 2 :]], argv[i + 1]
+            if arg.startswith(flag + "="):
+                return [*argv[:i], *argv[i + 1 :]], arg.split("=", 1)[1]
+    return list(argv), None
+
+
+def resolve_train_config(argv: Sequence[str]) -> tuple[list[str], ResolvedConfig]:
+    """The hyperparameters of ``sb3-gcrl train``, found as ``sb3-gcrl compare`` finds them
+    (:func:`~sb3_gcrl.zoo_config.resolve_config`: ``-conf``, else ``zoo_configs/<algo>.yml``, ``<algo>_thesis.yml``,
+    RL-Zoo's own), with ``--variant NAME`` picking the section ``<env id>@NAME``.
+
+    :param argv: ``sb3-gcrl train`` arguments.
+    :return: the arguments for RL-Zoo (``--variant`` taken out, ``-conf`` naming the file found) and the section
+        the run uses (a variant's section is written to the run's folder by
+        :class:`~sb3_gcrl.zoo_train.ResumableExperimentManager`: RL-Zoo reads only plain env-id keys).
+    :raises SystemExit: no such config, env section or variant; the message names the files searched, the envs
+        they cover and the variants of the env.
+    """
+    from sb3_gcrl.zoo_config import ConfigNotFoundError, resolve_config
+
+    rest, variant = _take_option(argv, "--variant")
+    rest, config = _take_option(rest, "-conf", "--conf-file")
+    algo = _option_value(rest, "--algo") or "ppo"  # RL-Zoo's defaults
+    env_id = _option_value(rest, "--env") or "CartPole-v1"
+    try:
+        resolved = resolve_config(algo, env_id, variant, config)
+    except ConfigNotFoundError as error:
+        raise SystemExit(f"sb3-gcrl train: {error}") from None
+    return [*rest, "-conf", str(resolved.path)], resolved
 
 
 def list_configs(argv: list[str]) -> int:
-    """``sb3-gcrl list-configs``: print the shipped zoo configs (names usable as ``-conf NAME``) and their folder.
+    """``sb3-gcrl list-configs``: print the shipped zoo configs (names usable as ``-conf NAME``), each with its env
+    sections and their variants (``--variant NAME``).
 
     :param argv: unused (no options).
     :return: exit code.
     """
+    from sb3_gcrl.zoo_config import config_sections
+
     if argv:
         raise SystemExit(f"sb3-gcrl list-configs takes no arguments, got {argv}")
-    print(f"# {ZOO_CONFIGS_DIR}")
+    print(f"# {ZOO_CONFIGS_DIR}: NAME, then each env section with its variants (--variant)")
     for path in sorted(ZOO_CONFIGS_DIR.glob("*.yml")):
         print(path.stem)
+        for env_id, variants in config_sections(path).items():
+            print(f"  {env_id}" + (f"  variants: {' '.join(variants)}" if variants else ""))
     return 0
 
 
@@ -152,6 +156,11 @@ NUM_THREADS_NOTE = (
 )
 
 
+VARIANT_NOTE = (
+    "sb3-gcrl train: without -conf the hyperparameters come from the shipped zoo_configs/<algo>.yml (then "
+    "<algo>_thesis.yml, then RL-Zoo's own); -conf also takes a shipped config's name; --variant NAME trains the "
+    "section <env id>@NAME (sb3-gcrl list-configs prints them)"
+)
 RESUME_NOTE = (
     "sb3-gcrl train: Ctrl-C saves a resumable checkpoint (model, replay buffer, wrapper state, generators) and exits "
     "with 130; --save-freq N also saves one every N steps. `sb3-gcrl train --resume RUN_FOLDER` (the 'Log path' a "
@@ -181,7 +190,8 @@ def train(argv: list[str]) -> int:
     from sb3_gcrl.zoo_train import INTERRUPTED_EXIT_CODE, ResumableExperimentManager, resume_arguments
 
     if "-h" in argv or "--help" in argv:
-        print(NUM_THREADS_NOTE + "\n" + RESUME_NOTE + "\n")
+        print(NUM_THREADS_NOTE + "\n" + VARIANT_NOTE + "\n" + RESUME_NOTE + "\n")
+        return _run_zoo_script(rl_zoo3.train.train, "sb3-gcrl train", argv)
     resume_from = None
     if "--resume" in argv:
         if len(argv) != 2 or argv[0] != "--resume":
@@ -190,12 +200,14 @@ def train(argv: list[str]) -> int:
             )
         resume_from = Path(argv[1]).resolve()
         argv, _ = resume_arguments(resume_from)
-    argv = _with_default_num_threads(_with_default_config(argv))
-    _check_config(argv)
+    argv, resolved = resolve_train_config(argv)
+    argv = _with_default_num_threads(argv)
+    _check_config(argv, resolved)
+    section = None if resolved.rl_zoo_reads_it else resolved  # a variant: the run writes its section to its folder
     managers: list[ResumableExperimentManager] = []
 
     def manager(*args: Any, **kwargs: Any) -> ResumableExperimentManager:
-        managers.append(ResumableExperimentManager(*args, resume_from=resume_from, **kwargs))
+        managers.append(ResumableExperimentManager(*args, resume_from=resume_from, section=section, **kwargs))
         return managers[-1]
 
     zoo_manager = rl_zoo3.train.ExperimentManager  # type: ignore[attr-defined]
@@ -220,29 +232,23 @@ def _override_keys(argv: Sequence[str]) -> list[str]:
     return keys
 
 
-def _check_config(argv: list[str]) -> None:
-    """Stop before training when ``-conf`` (with the ``-params`` overrides) has a key that the algorithm does not
+def _check_config(argv: list[str], resolved: ResolvedConfig) -> None:
+    """Stop before training when the section (with the ``-params`` overrides) has a key that the algorithm does not
     take (:func:`~sb3_gcrl.zoo_config.check_hyperparameters`, with close matches), or uses a mode-switched wrapper
     without its callback (:func:`~sb3_gcrl.zoo_config.check_mode_switching_callbacks`)."""
     from rl_zoo3.utils import ALGOS
 
     from sb3_gcrl.algorithms import ALGORITHMS
-    from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks, zoo_config_section
+    from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks
 
-    config, env_id = _option_value(argv, "-conf", "--conf-file"), _option_value(argv, "--env")
-    if config is None or env_id is None or not Path(config).is_file():
-        return  # RL-Zoo's own hyperparameters, or an error RL-Zoo reports itself
-    section = zoo_config_section(Path(config), env_id)
-    if section is None:
-        return  # RL-Zoo reports the missing section itself
     overrides = _override_keys(argv)
     algo = _option_value(argv, "--algo")
     try:
         if algo in ALGORITHMS or algo in ALGOS:
-            merged = {**section, **dict.fromkeys(overrides)}
-            check_hyperparameters(algo, merged, f"{config} (section {env_id})", overrides)
+            merged = {**resolved.hyperparams, **dict.fromkeys(overrides)}
+            check_hyperparameters(algo, merged, resolved.where, overrides)
         if not {"callback", "env_wrapper"} & set(overrides):  # else RL-Zoo's merged values are not known here
-            check_mode_switching_callbacks(section, f"{config} ({env_id})")
+            check_mode_switching_callbacks(resolved.hyperparams, resolved.where)
     except ValueError as error:
         raise SystemExit(f"sb3-gcrl train: {error}") from None
 
@@ -358,6 +364,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     :return: exit code.
     """
     args = list(sys.argv[1:] if argv is None else argv)
+    # this package's DeprecationWarnings (an old config name) reach the command line, whoever called it
+    warnings.filterwarnings("default", category=DeprecationWarning, module=r"sb3_gcrl(\.|$)")
     try:
         code = _dispatch(args)
         sys.stdout.flush()  # inside the try: a reader gone before the last buffered lines is a broken pipe too

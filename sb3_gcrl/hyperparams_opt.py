@@ -22,7 +22,8 @@ The ranges are the thesis's tuned values where it gives them:
 
 Settings of the env wrappers (MoReFree's alpha, the horizons H_G = H_E, the hard-reset interval) are not
 constructor arguments of an algorithm, and RL-Zoo's sampler interface can only return those; tune them by running
-one config per value (``sb3-gcrl compare`` does that side by side).
+one config section per value, e.g. variants ``<env id>@<name>`` of ``zoo_configs/<algo>.yml`` (``sb3-gcrl compare -m
+ALGO@NAME ...`` runs them side by side).
 """
 
 from __future__ import annotations

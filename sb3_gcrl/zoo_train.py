@@ -12,7 +12,10 @@ model, with the step counter at 0. :class:`ResumableExperimentManager` keeps eve
 * ``sb3-gcrl train --resume <run folder>`` continues the same run, in the same folder, from its newest checkpoint:
   with the run's own arguments, the step counter where it stopped, the remaining budget, and the monitor CSV and
   evaluation history extended rather than overwritten (evaluations after the checkpoint are dropped: they are
-  run again).
+  run again);
+* a variant's section (``--variant NAME``: the key ``<env id>@NAME``, which RL-Zoo does not read) is written, keyed
+  by the plain env id, to the run's parameter folder (:data:`CONFIG_FILE`), which RL-Zoo then reads and a resumed
+  run reads again.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rl_zoo3.exp_manager import ExperimentManager
@@ -42,8 +45,13 @@ from sb3_gcrl.common.checkpoints import (
 )
 from sb3_gcrl.common.saving import atomic_write_text
 
+if TYPE_CHECKING:
+    from sb3_gcrl.zoo_config import ResolvedConfig
+
 #: file in the run's parameter folder (``<run>/<env name>/``) holding the ``sb3-gcrl train`` arguments to resume with
 ARGUMENTS_FILE = "sb3_gcrl_train_args.json"
+#: file in the run's parameter folder holding the section of a variant (``--variant``), keyed by the plain env id
+CONFIG_FILE = "sb3_gcrl_config.yml"
 #: ``sb3-gcrl train``'s exit code after an interruption (the shell's code for SIGINT)
 INTERRUPTED_EXIT_CODE = 130
 #: options of ``sb3-gcrl train`` that take a file path (made absolute in the saved arguments)
@@ -56,10 +64,14 @@ class ResumableExperimentManager(ExperimentManager):
     :param args: RL-Zoo's ``ExperimentManager`` arguments.
     :param resume_from: the run folder to continue (None: a new run); RL-Zoo's ``trained_agent`` must then be its
         newest checkpoint's model.
+    :param section: a section RL-Zoo cannot read from its file (a variant's): written to :data:`CONFIG_FILE` in the
+        run's parameter folder, which becomes the run's config (also for ``--resume``).
     :param kwargs: RL-Zoo's ``ExperimentManager`` keyword arguments.
     """
 
-    def __init__(self, *args: Any, resume_from: Path | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self, *args: Any, resume_from: Path | None = None, section: ResolvedConfig | None = None, **kwargs: Any
+    ) -> None:
         super().__init__(*args, **kwargs)
         #: whether training stopped on KeyboardInterrupt (Ctrl-C)
         self.interrupted = False
@@ -70,6 +82,13 @@ class ResumableExperimentManager(ExperimentManager):
             self._checkpoint = Path(self.trained_agent).parent
             self.save_path = str(resume_from)
             self.params_path = f"{self.save_path}/{self.env_name}"
+        #: the file written for ``section`` (None: RL-Zoo reads the config it was given)
+        self.section_file: Path | None = None
+        if section is not None and not self.resuming:
+            self.section_file = Path(self.params_path) / CONFIG_FILE
+            self.section_file.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(self.section_file, section.to_yaml())
+            self.config = self.args.conf_file = str(self.section_file)
 
     def save_trained_model(self, model: BaseAlgorithm) -> None:
         """RL-Zoo's final save, unless a resumed run had nothing left to train (its files stay as they are)."""
@@ -89,6 +108,8 @@ class ResumableExperimentManager(ExperimentManager):
         arguments = sys.argv[1:]
         if "--seed" not in arguments:  # RL-Zoo drew one: resume with it
             arguments += ["--seed", str(self.seed)]
+        if self.section_file is not None:  # a resumed run reads the variant's section from the run's folder
+            arguments = with_option(arguments, PATH_OPTIONS, str(self.section_file))
         atomic_write_text(Path(self.params_path) / ARGUMENTS_FILE, json.dumps(absolute_paths(arguments)))
 
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
@@ -207,6 +228,20 @@ def sigint_handled_by(handler: Any) -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def with_option(arguments: list[str], flags: tuple[str, ...], value: str) -> list[str]:
+    """``arguments`` with the value of the first of ``flags`` replaced (``--flag value`` or ``--flag=value``), or
+    ``flags[0] value`` added when none is there."""
+    out = list(arguments)
+    for i, word in enumerate(out):
+        if word in flags and i + 1 < len(out):
+            out[i + 1] = value
+            return out
+        if word.startswith(tuple(f"{flag}=" for flag in flags)):
+            out[i] = f"{word.split('=', 1)[0]}={value}"
+            return out
+    return [*out, flags[0], value]
 
 
 def absolute_paths(arguments: list[str]) -> list[str]:

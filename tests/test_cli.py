@@ -126,7 +126,7 @@ def test_plain_rl_zoo3_train_with_gym_packages(tmp_path: Path) -> None:
             "--gym-packages",
             "sb3_gcrl",
             "-conf",
-            str(ZOO_CONFIGS_DIR / "sac_ch4.yml"),
+            str(ZOO_CONFIGS_DIR / "sac.yml"),
             "-n",
             "150",
             "--hyperparams",
@@ -257,25 +257,27 @@ def test_train_runs_torch_on_one_thread_unless_num_threads_is_given(
 
 
 def test_conf_takes_the_name_of_a_shipped_config(tmp_path, capsys):
-    from sb3_gcrl.cli import _with_default_config, shipped_config
+    from sb3_gcrl.cli import resolve_train_config, shipped_config
 
-    resolved = _with_default_config(["--algo", "sac", "-conf", "reset_free_pointumaze_morefree", "--env", "E"])
-    assert resolved == [
-        "--algo",
-        "sac",
-        "-conf",
-        str(ZOO_CONFIGS_DIR / "reset_free_pointumaze_morefree.yml"),
-        "--env",
-        "E",
-    ]
-    assert _with_default_config(["--algo", "sac", "--conf-file=cec.yml"])[-1] == str(ZOO_CONFIGS_DIR / "cec.yml")
+    argv, resolved = resolve_train_config(["--algo", "sac", "-conf", "sac", "--env", "GCRL/PointUMazeGoal-v0"])
+    assert argv == ["--algo", "sac", "--env", "GCRL/PointUMazeGoal-v0", "-conf", str(ZOO_CONFIGS_DIR / "sac.yml")]
+    assert resolved.key == "GCRL/PointUMazeGoal-v0"
+    argv, _ = resolve_train_config(["--algo", "cec", "--conf-file=cec.yml", "--env", "GCRL/GrowingTree-v0"])
+    assert argv[-1] == str(ZOO_CONFIGS_DIR / "cec.yml")
     own = tmp_path / "cec.yml"
-    own.write_text("{}\n")
-    assert _with_default_config(["--algo", "cec", "-conf", str(own)])[-1] == str(own)  # a user's file wins
-    assert _with_default_config(["--algo", "cec"])[-2:] == ["-conf", str(ZOO_CONFIGS_DIR / "cec.yml")]
+    own.write_text("GCRL/GrowingTree-v0: {policy: CECPolicy}\n")
+    argv, resolved = resolve_train_config(["--algo", "cec", "--env", "GCRL/GrowingTree-v0", "-conf", str(own)])
+    assert argv[-1] == str(own) and resolved.hyperparams == {"policy": "CECPolicy"}  # a user's file wins
+    argv, _ = resolve_train_config(["--algo", "cec", "--env", "GCRL/GrowingTree-v0"])
+    assert argv[-2:] == ["-conf", str(ZOO_CONFIGS_DIR / "cec.yml")]  # our algorithm's default file
     assert shipped_config("../pyproject.toml") is None  # names only, no paths out of the folder
     with pytest.raises(SystemExit, match="list-configs"):
-        _with_default_config(["--algo", "sac", "-conf", "no_such_config"])
+        resolve_train_config(["--algo", "sac", "-conf", "no_such_config"])
     assert main(["list-configs"]) == 0
-    names = capsys.readouterr().out.split()
-    assert "cec" in names and "reset_free_pointumaze_morefree" in names
+    out = capsys.readouterr().out
+    names = out.split()
+    assert "cec" in names and "sac" in names and "morefree_thesis" in names
+    sac = out.split("\nsac\n")[1]  # the env sections of sac.yml, each with its variants
+    assert (
+        "  GCRL/PointUMazeGoal-v0  variants: oracle naive goexplore wo_bf wo_relabel alpha1 post_exploration_on" in sac
+    )

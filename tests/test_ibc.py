@@ -18,6 +18,7 @@ import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
 from sb3_gcrl.reset_free_baselines import IBC, IBCCurriculumScheduler, find_ibc_scheduler, ibc_go_explore
 from sb3_gcrl.wrappers import GoExploreWrapper, ResetFreeWrapper
+from sb3_gcrl.zoo_config import read_zoo_config
 
 ENV_ID = "GCRL/GrowingTreeGoal-v0"  # 1-D heights; rho_0 = 0, rho_g* = 1; actions change the height by <= 0.1
 TINY = {"net_arch": [16]}
@@ -299,37 +300,37 @@ def test_subprocess_envs_are_refused_and_the_old_module_path_is_a_deprecated_ali
 
 # ---------------------------------------------------------------------------------------------------------- configs
 REPO = Path(__file__).resolve().parents[1]
-IBC_CONFIGS = sorted((REPO / "sb3_gcrl" / "zoo_configs").glob("ibc_*.yml"))
+#: ibc.yml (CPU sizes, the defaults) and ibc_thesis.yml (the official sizes)
+IBC_FILES = [REPO / "sb3_gcrl" / "zoo_configs" / name for name in ("ibc.yml", "ibc_thesis.yml")]
+#: (file, env id) of every section
+IBC_CONFIGS = [(path, env_id) for path in IBC_FILES for env_id in read_zoo_config(path)]
 
 
 def test_a_config_for_every_reset_free_task():
-    import yaml
-
     from sb3_gcrl.envs.reset_free import RESET_FREE_TASKS
 
-    assert {env_id for p in IBC_CONFIGS for env_id in yaml.safe_load(p.read_text())} == set(RESET_FREE_TASKS)
+    for path in IBC_FILES:
+        assert set(read_zoo_config(path)) == set(RESET_FREE_TASKS)
 
 
-@pytest.mark.parametrize("config", IBC_CONFIGS, ids=[p.stem for p in IBC_CONFIGS])
-def test_config_keys_are_constructor_arguments(config: Path):
+@pytest.mark.parametrize(("config", "env_id"), IBC_CONFIGS, ids=[f"{p.stem}-{e}" for p, e in IBC_CONFIGS])
+def test_config_keys_are_constructor_arguments(config: Path, env_id: str):
     import inspect
 
-    import yaml
     from stable_baselines3 import SAC
 
-    ((_, section),) = yaml.safe_load(config.read_text()).items()
+    section = read_zoo_config(config)[env_id]
     accepted = set(inspect.signature(IBC).parameters) | set(inspect.signature(SAC).parameters)
     assert set(section) - {"n_timesteps", "policy", "env_wrapper", "callback", "monitor_kwargs"} <= accepted
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("config", IBC_CONFIGS, ids=[p.stem for p in IBC_CONFIGS])
-def test_every_config_builds_its_ibc_env(config: Path):
+@pytest.mark.parametrize(("config", "env_id"), IBC_CONFIGS, ids=[f"{p.stem}-{e}" for p, e in IBC_CONFIGS])
+def test_every_config_builds_its_ibc_env(config: Path, env_id: str):
     """The env_wrapper chain RL-Zoo builds from each config accepts its kwargs and runs IBC's segments reset-free."""
-    import yaml
     from rl_zoo3.utils import get_wrapper_class
 
-    ((env_id, hyperparams),) = yaml.safe_load(config.read_text()).items()
+    hyperparams = read_zoo_config(config)[env_id]
     env = get_wrapper_class(hyperparams)(gym.make(env_id))
     scheduler = find_ibc_scheduler(env)
     assert scheduler is not None and scheduler.n_targets == 50
@@ -354,7 +355,7 @@ def test_pointumaze_config_trains_under_rl_zoo(tmp_path: Path):
 
     cmd = [
         sys.executable, "-m", "sb3_gcrl", "train", "--algo", "ibc", "--env", "GCRL/PointUMazeGoal-v0",
-        "-conf", "ibc_pointumaze", "--gym-packages", "sb3_gcrl", "-n", "700", "--eval-freq", "600",
+        "-conf", "ibc_thesis", "--gym-packages", "sb3_gcrl", "-n", "700", "--eval-freq", "600",
         "--eval-episodes", "1", "--seed", "0", "--num-threads", "1", "--log-interval", "2", "-f", str(tmp_path),
         "-params", "learning_starts:300", "batch_size:32", "policy_kwargs:dict(net_arch=[16])",
     ]  # fmt: skip

@@ -33,6 +33,7 @@ from sb3_gcrl.reset_free_baselines import (
     load_demos,
 )
 from sb3_gcrl.wrappers import ResetFreeWrapper
+from sb3_gcrl.zoo_config import config_sections, resolve_config
 
 ENV_ID = "GCRL/GrowingTreeGoal-v0"  # height 0 -> goal 1, actions in [-0.1, 0.1]
 SEGMENT = 12
@@ -386,27 +387,29 @@ def test_sac_arguments_that_cannot_work_with_two_learners_are_refused_saying_why
 
 
 # ------------------------------------------------------------------------------------------------ zoo configs
-CONFIGS = sorted((Path(sb3_gcrl.__file__).parent / "zoo_configs").glob("*.yml"))
-BASELINE_CONFIGS = [p for p in CONFIGS if p.name.startswith(("medal_", "r3l_"))]
+ZOO_CONFIGS = Path(sb3_gcrl.__file__).parent / "zoo_configs"
+#: (algorithm, env id) of every section of medal.yml and r3l.yml
+BASELINE_CONFIGS = [
+    (algo, env_id) for algo in ("medal", "r3l") for env_id in config_sections(ZOO_CONFIGS / f"{algo}.yml")
+]
 #: RL-Zoo keys that are not constructor arguments
 ZOO_KEYS = {"n_timesteps", "policy", "env_wrapper", "callback", "monitor_kwargs"}
 
 
 def test_configs_exist_for_every_task_with_demonstrations_and_r3l_for_every_reset_free_task():
-    names = {p.stem for p in BASELINE_CONFIGS}
-    tasks = {p.stem.removeprefix("reset_free_").removesuffix("_naive") for p in CONFIGS if p.stem.endswith("_naive")}
-    assert {f"r3l_{task}" for task in tasks} <= names and len(tasks) == 8
-    assert {"medal_pointumaze", "medal_tabletop"} <= names
+    names = set(BASELINE_CONFIGS)
+    # the reset-free tasks: those with the naive reset-free baseline of the model-free MoReFree port (SAC)
+    tasks = {env for env, variants in config_sections(ZOO_CONFIGS / "sac.yml").items() if "naive" in variants}
+    assert {("r3l", task) for task in tasks} <= names and len(tasks) == 8
+    assert {("medal", "GCRL/PointUMazeGoal-v0"), ("medal", "GCRL/Tabletop-v0")} <= names
 
 
-@pytest.mark.parametrize("config", BASELINE_CONFIGS, ids=lambda p: p.stem)
-def test_config_keys_are_constructor_arguments(config: Path):
+@pytest.mark.parametrize(("algo", "env_id"), BASELINE_CONFIGS, ids=lambda p: str(p))
+def test_config_keys_are_constructor_arguments(algo: str, env_id: str):
     import inspect
 
-    import yaml
-
-    ((env_id, section),) = yaml.safe_load(config.read_text()).items()
-    cls = MEDAL if config.name.startswith("medal_") else R3L
+    section = resolve_config(algo, env_id).hyperparams
+    cls = MEDAL if algo == "medal" else R3L
     accepted = set(inspect.signature(cls).parameters)
     for base in (BackwardRewardSAC, ForwardBackwardSAC):  # the reward model's and SAC's arguments
         accepted |= set(inspect.signature(base).parameters)
@@ -416,17 +419,15 @@ def test_config_keys_are_constructor_arguments(config: Path):
         load_demos(section["demos"], gym.make(env_id).observation_space, gym.make(env_id).action_space)
 
 
-@pytest.mark.parametrize("name", ["medal_pointumaze", "r3l_tabletop"])
-def test_config_builds_and_trains_briefly(name: str):
-    import yaml
+@pytest.mark.parametrize(("name", "env_id"), [("medal", "GCRL/PointUMazeGoal-v0"), ("r3l", "GCRL/Tabletop-v0")])
+def test_config_builds_and_trains_briefly(name: str, env_id: str):
     from rl_zoo3.utils import get_wrapper_class
 
-    config = next(p for p in BASELINE_CONFIGS if p.stem == name)
-    ((env_id, section),) = yaml.safe_load(config.read_text()).items()
+    section = resolve_config(name, env_id).hyperparams
     env = make_vec_env(env_id, n_envs=1, seed=0, wrapper_class=get_wrapper_class(section))
     kwargs = {k: v for k, v in section.items() if k not in ZOO_KEYS | {"policy_kwargs"}}
     kwargs.update(learning_starts=20, batch_size=16, buffer_size=5_000, reward_model_batch_size=32)
-    cls = MEDAL if name.startswith("medal_") else R3L
+    cls = MEDAL if name == "medal" else R3L
     model = cls(section["policy"], env, policy_kwargs={"net_arch": [16]}, seed=0, **kwargs)
     model.learn(320, callback=ResetFreeCallback(), log_interval=None)  # the first backward phase starts at step 300
     assert model.num_timesteps == 320 and model.backward_buffer.n_visited() == 20

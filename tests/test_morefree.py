@@ -630,54 +630,56 @@ def test_executed_explore_actions_are_stored_with_a_random_explorer():
 
 #: thesis Table 3.2 train ratios
 TRAIN_RATIO = {
-    "pointumaze": 2,
-    "sawyer_door": 5,
-    "tabletop": 1,
-    "fetch_push": 2,
-    "fetch_pick_and_place": 2,
-    "fetch_push_hard": 2,
-    "fetch_pick_and_place_hard": 2,
-    "ant": 2,
+    "GCRL/PointUMazeGoal-v0": 2,
+    "GCRL/SawyerDoor-v0": 5,
+    "GCRL/Tabletop-v0": 1,
+    "GCRL/ErgodicFetchPush-v0": 2,
+    "GCRL/ErgodicFetchPickAndPlace-v0": 2,
+    "GCRL/FetchPushHard-v0": 2,
+    "GCRL/FetchPickAndPlaceHard-v0": 2,
+    "GCRL/AntArena-v0": 2,
 }
-#: exploration alpha (env) and imagination alpha of each method
+#: exploration alpha (env) and imagination alpha of each method: MoReFree (the env's default section) and its variants
 METHOD_ALPHAS = {"morefree": (0.2, 0.2), "peg": (0.0, 0.0), "wo_bf": (0.0, 0.2), "wo_imag": (0.2, 0.0)}
 
 
 def test_zoo_configs_cover_every_task_method_and_preset():
-    import yaml
+    from sb3_gcrl.zoo_config import read_zoo_config, split_section_key
 
     root = Path(__file__).resolve().parents[1] / "zoo_configs"
     seen = set()
-    for path in sorted(root.glob("morefree_*.yml")):
-        stem = path.stem.removeprefix("morefree_")
-        task, method, preset = next(
-            (t, m, stem[len(t) + len(m) + 2 :])
-            for t in sorted(TRAIN_RATIO, key=len, reverse=True)
-            for m in METHOD_ALPHAS
-            if stem.startswith(f"{t}_{m}_")
-        )
-        seen.add((task, method, preset))
-        ((_, hyperparams),) = yaml.safe_load(path.read_text()).items()
-        assert hyperparams["train_ratio"] == TRAIN_RATIO[task], path.name
-        assert any("ResetFreeCallback" in str(c) for c in hyperparams["callback"]), path.name
-        (go_explore,) = (w for w in hyperparams["env_wrapper"] if "sb3_gcrl.morefree.morefree_go_explore" in w)
-        env_alpha, imagination_alpha = METHOD_ALPHAS[method]
-        assert go_explore["sb3_gcrl.morefree.morefree_go_explore"]["alpha"] == env_alpha, path.name
-        assert hyperparams.get("imagination_alpha", env_alpha) == imagination_alpha, path.name
+    for preset, file in (("cpu", "morefree.yml"), ("thesis", "morefree_thesis.yml")):
+        for key, hyperparams in read_zoo_config(root / file).items():
+            task, variant = split_section_key(key)
+            method = variant or "morefree"
+            seen.add((task, method, preset))
+            where = f"{file} ({key})"
+            assert hyperparams["train_ratio"] == TRAIN_RATIO[task], where
+            assert any("ResetFreeCallback" in str(c) for c in hyperparams["callback"]), where
+            (go_explore,) = (w for w in hyperparams["env_wrapper"] if "sb3_gcrl.morefree.morefree_go_explore" in w)
+            env_alpha, imagination_alpha = METHOD_ALPHAS[method]
+            assert go_explore["sb3_gcrl.morefree.morefree_go_explore"]["alpha"] == env_alpha, where
+            assert hyperparams.get("imagination_alpha", env_alpha) == imagination_alpha, where
     for task in TRAIN_RATIO:
         for preset in ("cpu", "thesis"):
             assert {(task, "morefree", preset), (task, "peg", preset)} <= seen, (task, preset)
-    for task in ("pointumaze", "fetch_push_hard", "fetch_pick_and_place_hard", "ant"):
+    for task in (
+        "GCRL/PointUMazeGoal-v0",
+        "GCRL/FetchPushHard-v0",
+        "GCRL/FetchPickAndPlaceHard-v0",
+        "GCRL/AntArena-v0",
+    ):
         assert {(task, m, "cpu") for m in METHOD_ALPHAS} <= seen, task
 
 
 @pytest.mark.parametrize("method", sorted(METHOD_ALPHAS))
 def test_pointumaze_cpu_configs_train_with_the_alphas_they_state(method: str):
-    import yaml
     from rl_zoo3.utils import get_wrapper_class
 
-    path = Path(__file__).resolve().parents[1] / "zoo_configs" / f"morefree_pointumaze_{method}_cpu.yml"
-    ((env_id, hyperparams),) = yaml.safe_load(path.read_text()).items()
+    from sb3_gcrl.zoo_config import resolve_config
+
+    env_id = "GCRL/PointUMazeGoal-v0"  # the CPU preset (morefree.yml): the default section, or a variant
+    hyperparams = resolve_config("morefree", env_id, None if method == "morefree" else method).hyperparams
     wrapper = get_wrapper_class(hyperparams)
     env = make_vec_env(env_id, n_envs=1, seed=0, wrapper_class=wrapper)
     kwargs = {k: v for k, v in hyperparams.items() if k not in ("n_timesteps", "policy", "env_wrapper", "callback")}

@@ -233,8 +233,8 @@ def test_her_buffer_stores_executed_actions_and_relabels_with_post_exploration_s
 
 @pytest.mark.slow  # a stock rl_zoo3 subprocess with all-goals evaluations: over a minute on 2 loaded cores
 def test_rl_zoo3_train_with_the_post_exploration_yaml(tmp_path: Path) -> None:
-    """Stock `rl_zoo3 train` with our FetchReach config (a few hundred steps)."""
-    config = Path(__file__).parents[1] / "zoo_configs" / "post_exploration_fetchreach_ddpg_on.yml"
+    """Stock `rl_zoo3 train` with our FetchReach config (a few hundred steps): the env's section of ddpg.yml."""
+    config = Path(__file__).parents[1] / "zoo_configs" / "ddpg.yml"
     zoo = Path(sys.executable).with_name("rl_zoo3")
     result = subprocess.run(
         [str(zoo), "train", "--algo", "ddpg", "--env", "FetchReach-v4", "--gym-packages", "sb3_gcrl", "-conf",

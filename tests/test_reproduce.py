@@ -83,7 +83,7 @@ def test_minatar_configs_agree(game: str) -> None:
     copied every 1000 updates = 10,000 env steps, RMSprop 1e-4, batch 16, buffer 5e4)."""
     env_id = f"MinAtar/{game}-v1"
     two_memory = zoo_config_section(ZOO_CONFIGS_DIR / "two_memory_dqn.yml", env_id)
-    dqn = zoo_config_section(ZOO_CONFIGS_DIR / "dqn_minatar.yml", env_id)
+    dqn = zoo_config_section(ZOO_CONFIGS_DIR / "dqn.yml", env_id)
     assert two_memory is not None and dqn is not None
     shared = set(dqn) - {"policy", "policy_kwargs"}
     assert {key: two_memory[key] for key in shared} == {key: dqn[key] for key in shared}
@@ -134,14 +134,11 @@ def test_compare_kwargs_overrides() -> None:
 
 
 def test_select_methods() -> None:
-    assert select_methods(["ch3", "ch3-ablations"], ["alpha1", "oracle"]) == [
-        "alpha1=sac:reset_free_pointumaze_alpha1",
-        "oracle=sac:reset_free_pointumaze_oracle",
-    ]
+    assert select_methods(["ch3", "ch3-ablations"], ["alpha1", "oracle"]) == ["alpha1=sac@alpha1", "oracle=sac@oracle"]
     assert select_methods(["ch5"]) == list(get_preset("ch5").methods)
-    # a label two presets share (one per task) resolves to the first preset's spec
-    assert select_methods(["ch3-baselines-tabletop", "ch3-baselines"], ["ibc"]) == ["ibc=ibc:ibc_tabletop_cpu"]
-    assert select_methods(["ch3-baselines", "ch3-baselines-tabletop"], ["ibc"]) == ["ibc=ibc:ibc_pointumaze_cpu"]
+    # a label two presets share (one per algorithm) resolves to the first preset's spec
+    assert select_methods(["ch6-deep", "ch6"], ["off"]) == ["off=ddpg@off"]
+    assert select_methods(["ch6", "ch6-deep"], ["off"]) == ["off=imgep@off"]
     with pytest.raises(ValueError, match="choose from"):
         select_methods(["ch3"], ["morefre"])
     with pytest.raises(ValueError, match="Unknown preset"):

@@ -1,4 +1,8 @@
-"""The reset-free configs under RL-Zoo: evaluation stays episodic, every config runs, each setting is stated once."""
+"""The reset-free configs under RL-Zoo: evaluation stays episodic, every config runs, each setting is stated once.
+
+The model-free MoReFree port (SAC) is the default section of each reset-free task in ``zoo_configs/sac.yml``; its
+baselines and ablations are the variants ``<env id>@<method>`` of the same file.
+"""
 
 from __future__ import annotations
 
@@ -10,17 +14,33 @@ import numpy as np
 import pytest
 import yaml
 
+from sb3_gcrl.zoo_config import read_zoo_config, resolve_config, split_section_key
+
 REPO = Path(__file__).resolve().parents[1]
-CONFIGS = sorted((REPO / "zoo_configs").glob("reset_free_pointumaze_*.yml"))
+SAC = REPO / "zoo_configs" / "sac.yml"
 ENV_ID = "GCRL/PointUMazeGoal-v0"
+RESET_FREE_TASKS = (
+    "GCRL/PointUMazeGoal-v0", "GCRL/AntArena-v0", "GCRL/Tabletop-v0", "GCRL/SawyerDoor-v0", "GCRL/ErgodicFetchPush-v0",
+    "GCRL/ErgodicFetchPickAndPlace-v0", "GCRL/FetchPushHard-v0", "GCRL/FetchPickAndPlaceHard-v0",
+)  # fmt: skip
+#: (env id, variant) of every section of the port and its baselines and ablations (not the post-exploration ones)
+SECTIONS = [
+    split_section_key(key)
+    for key in read_zoo_config(SAC)
+    if split_section_key(key)[0] in RESET_FREE_TASKS and "post_exploration" not in key
+]
+#: the Ch. 3 methods on PointUMaze: the port (None: the default section) and its variants
+METHODS = [variant for env_id, variant in SECTIONS if env_id == ENV_ID]
 # tiny budget: small nets, updates start after the first 300-step segment, evaluation after 300 and 600 steps
 FAST = ["learning_starts:400", "batch_size:32", "policy_kwargs:dict(net_arch=[16])"]
 
 
-def zoo_train(config: Path, folder: Path, steps: int, eval_freq: int) -> tuple[Path, str]:
-    """Run ``python -m rl_zoo3.train`` (what ``sb3-gcrl train`` wraps) with a tiny budget; the run folder, stdout."""
+def zoo_train(config: Path, folder: Path, steps: int, eval_freq: int, variant: str | None = None) -> tuple[Path, str]:
+    """Run ``python -m rl_zoo3.train`` (what ``sb3-gcrl train`` wraps) with a tiny budget, or for a variant (a section
+    ``<env id>@<variant>``, which RL-Zoo does not read) ``sb3-gcrl train --variant``; the run folder, stdout."""
+    command = ["rl_zoo3.train"] if variant is None else ["sb3_gcrl", "train", "--variant", variant]
     cmd = [
-        sys.executable, "-m", "rl_zoo3.train", "--algo", "sac", "--env", ENV_ID, "-conf", str(config),
+        sys.executable, "-m", *command, "--algo", "sac", "--env", ENV_ID, "-conf", str(config),
         "--gym-packages", "sb3_gcrl", "-n", str(steps), "--eval-freq", str(eval_freq), "--eval-episodes", "1",
         "--seed", "0", "--num-threads", "1", "--log-interval", "1", "-f", str(folder), "-params", *FAST,
     ]  # fmt: skip
@@ -32,49 +52,24 @@ def zoo_train(config: Path, folder: Path, steps: int, eval_freq: int) -> tuple[P
 
 
 def test_configs_cover_the_methods_of_chapter_3() -> None:
-    names = {path.stem.removeprefix("reset_free_pointumaze_") for path in CONFIGS}
-    assert {"oracle", "naive", "goexplore", "morefree", "wo_bf", "wo_relabel", "alpha1"} <= names
-    morefree = yaml.safe_load((REPO / "zoo_configs" / "reset_free_pointumaze_morefree.yml").read_text())[ENV_ID]
+    assert {"oracle", "naive", "goexplore", None, "wo_bf", "wo_relabel", "alpha1"} <= set(METHODS)
+    morefree = resolve_config("sac", ENV_ID).hyperparams  # the port: the default section
     assert "TaskRelevantHerReplayBuffer" in morefree["replay_buffer_class"]
     wrapper = morefree["env_wrapper"][1]["sb3_gcrl.wrappers.GoExploreWrapper"]
     assert wrapper["scheduler"] == "back_and_forth" and wrapper["scheduler_kwargs"]["alpha"] == 0.2
 
 
-@pytest.mark.parametrize("config", sorted((REPO / "zoo_configs").glob("reset_free_*.yml")), ids=lambda p: p.stem)
-def test_every_config_states_alpha_and_each_horizon_once(config: Path) -> None:
-    text = config.read_text()
+@pytest.mark.parametrize(("env_id", "variant"), SECTIONS, ids=[f"{e}@{v}" for e, v in SECTIONS])
+def test_every_config_states_alpha_and_each_horizon_once(env_id: str, variant: str | None) -> None:
+    text = resolve_config("sac", env_id, variant).to_yaml()
     assert text.count("eval_horizon:") <= 1  # ResetFreeWrapper's; GoExploreWrapper reads it
     assert text.count("alpha:") + text.count("task_goal_ratio=") <= 1  # the buffer reads the scheduler's alpha
     assert text.count("hard_reset_every:") <= 1
 
 
-SUITE = ("pointumaze", "fetch_push", "fetch_pick_and_place", "fetch_push_hard", "fetch_pick_and_place_hard", "ant")
-SUITE += ("tabletop", "sawyer_door")
-
-
-@pytest.mark.parametrize("task", SUITE)
-def test_every_task_has_a_smaller_cpu_preset_of_the_same_method(task: str) -> None:
-    """``reset_free_<task>_morefree_cpu.yml``: the thesis-scale MoReFree config, with a smaller SAC updated less.
-
-    The other keys (the method) are equal.
-    """
-    from sb3_gcrl.zoo_config import read_zoo_config
-
-    ((env_id, thesis),) = read_zoo_config(REPO / "zoo_configs" / f"reset_free_{task}_morefree.yml").items()
-    ((cpu_env_id, cpu),) = read_zoo_config(REPO / "zoo_configs" / f"reset_free_{task}_morefree_cpu.yml").items()
-    assert cpu_env_id == env_id
-    smaller = {"policy_kwargs", "batch_size", "train_freq", "n_timesteps", "monitor_kwargs"}
-    assert {key: value for key, value in cpu.items() if key not in smaller} == {
-        key: value for key, value in thesis.items() if key not in smaller
-    }  # same method: wrappers, horizons, alpha, bins, buffer, callback, gamma, learning rate
-    net = eval(cpu["policy_kwargs"])["net_arch"]  # noqa: S307 (RL-Zoo eval()s this key too)
-    assert max(net) <= 128 and len(net) == 2 and sum(net) < sum(eval(thesis["policy_kwargs"])["net_arch"])  # noqa: S307
-    assert cpu["batch_size"] < thesis["batch_size"] and cpu["train_freq"] >= 2 * thesis["train_freq"]
-    assert cpu["gradient_steps"] == 1 and "is_success" in cpu["monitor_kwargs"]
-
-
 def test_zoo_evaluation_is_episodic_while_training_is_reset_free(tmp_path: Path, monkeypatch) -> None:
-    run, stdout = zoo_train(REPO / "zoo_configs" / "reset_free_pointumaze_morefree.yml", tmp_path, 600, 300)
+    # plain `rl_zoo3 train -conf zoo_configs/sac.yml`: RL-Zoo picks the env's own section, the port
+    run, stdout = zoo_train(SAC, tmp_path, 600, 300)
     evaluations = np.load(run / "evaluations.npz")
     assert list(evaluations["timesteps"]) == [300, 600]
     # the eval env got the same env_wrapper, yet its episodes are T_eval long (no Go/Explore segment ends)
@@ -106,28 +101,24 @@ def test_zoo_evaluation_is_episodic_while_training_is_reset_free(tmp_path: Path,
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("config", CONFIGS, ids=[path.stem for path in CONFIGS])
-def test_every_config_trains_briefly(config: Path, tmp_path: Path) -> None:
-    run, _ = zoo_train(config, tmp_path, steps=1200, eval_freq=600)
+@pytest.mark.parametrize("variant", METHODS, ids=[str(m) for m in METHODS])
+def test_every_config_trains_briefly(variant: str | None, tmp_path: Path) -> None:
+    run, _ = zoo_train(SAC, tmp_path, steps=1200, eval_freq=600, variant=variant)
     evaluations = np.load(run / "evaluations.npz")
     assert np.all(evaluations["ep_lengths"] == 300)
     assert (run / f"{ENV_ID.replace('/', '-')}.zip").exists()
 
 
-ALL_CONFIGS = sorted((REPO / "zoo_configs").glob("reset_free_*.yml"))
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("config", ALL_CONFIGS, ids=[path.stem for path in ALL_CONFIGS])
-def test_every_config_builds_its_wrapped_env(config: Path) -> None:
-    """Each task's config: the env_wrapper chain RL-Zoo builds accepts its kwargs and runs reset-free."""
+@pytest.mark.parametrize(("env_id", "variant"), SECTIONS, ids=[f"{e}@{v}" for e, v in SECTIONS])
+def test_every_config_builds_its_wrapped_env(env_id: str, variant: str | None) -> None:
+    """Each task's sections: the env_wrapper chain RL-Zoo builds accepts its kwargs and runs reset-free."""
     import gymnasium as gym
     from rl_zoo3.utils import get_wrapper_class
 
     import sb3_gcrl  # noqa: F401 (registers GCRL/ envs)
 
-    ((env_id, hyperparams),) = yaml.safe_load(config.read_text()).items()
-    wrapper = get_wrapper_class(hyperparams)
+    wrapper = get_wrapper_class(resolve_config("sac", env_id, variant).hyperparams)
     env = gym.make(env_id)
     env = wrapper(env) if wrapper is not None else env
     env.reset(seed=0)
@@ -144,10 +135,10 @@ def test_every_config_builds_its_wrapped_env(config: Path) -> None:
 
 @pytest.mark.parametrize("config", sorted((REPO / "zoo_configs").glob("*.yml")), ids=lambda p: p.stem)
 def test_every_config_with_a_mode_switched_wrapper_has_its_callback(config: Path) -> None:
-    from sb3_gcrl.zoo_config import check_mode_switching_callbacks, read_zoo_config
+    from sb3_gcrl.zoo_config import check_mode_switching_callbacks
 
-    for env_id, section in read_zoo_config(config).items():
-        check_mode_switching_callbacks(section, f"{config.name} ({env_id})")
+    for key, section in read_zoo_config(config).items():  # variants (<env id>@<variant>) included
+        check_mode_switching_callbacks(section, f"{config.name} ({key})")
 
 
 def test_wrappers_without_their_switching_callback_are_refused(tmp_path: Path) -> None:

@@ -26,11 +26,13 @@ from sb3_gcrl.zoo_train import INTERRUPTED_EXIT_CODE
 
 ENV = "GCRL/PointUMazeGoal-v0"
 ENV_NAME = "GCRL-PointUMazeGoal-v0"
-#: the reset-free SAC port (Back-and-Forth Go-Explore wrappers, task-relevant HER): a tiny, cheap version of it
+#: the model-free MoReFree port (SAC; Back-and-Forth Go-Explore wrappers, task-relevant HER), the default section of
+#: zoo_configs/sac.yml: a tiny, cheap version of it
 TRAIN = [
-    "train", "--algo", "sac", "--env", ENV, "-conf", "reset_free_pointumaze_morefree_cpu", "-n", "3000",
+    "train", "--algo", "sac", "--env", ENV, "-n", "3000",
     "--save-freq", "1000", "--eval-freq", "1000", "--eval-episodes", "1", "-f", "logs", "--seed", "1",
     "-params", "learning_starts:2500", "batch_size:8", "policy_kwargs:dict(net_arch=[8])", "gradient_steps:1",
+    "train_freq:4",
 ]  # fmt: skip
 
 
@@ -61,10 +63,16 @@ def _wrapper_state(checkpoint: Path) -> dict:
     return {name: attributes for name, attributes in pickle.loads(state)}
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["sigint", "sigkill"])
-def test_interrupted_run_resumes_with_everything_saved(tmp_path: Path, sig: signal.Signals) -> None:
+@pytest.mark.parametrize(
+    ("sig", "variant"), [(signal.SIGINT, None), (signal.SIGKILL, "wo_relabel")], ids=["sigint", "sigkill-variant"]
+)
+def test_interrupted_run_resumes_with_everything_saved(
+    tmp_path: Path, sig: signal.Signals, variant: str | None
+) -> None:
+    """A killed run resumes; one of a variant (``--variant``) with the section written to its folder."""
     run_dir = tmp_path / "logs" / "sac" / f"{ENV_NAME}_1"
-    output = _stop_after_first_checkpoint(_start(tmp_path, TRAIN), run_dir, sig)
+    train = TRAIN if variant is None else [*TRAIN, "--variant", variant]
+    output = _stop_after_first_checkpoint(_start(tmp_path, train), run_dir, sig)
     if sig == signal.SIGINT:
         # RL-Zoo's own final save, then the shell's exit code for Ctrl-C, and a checkpoint at the interruption
         assert "Interrupted at step" in output and "sb3-gcrl train --resume" in output, output[-3000:]
@@ -82,6 +90,12 @@ def test_interrupted_run_resumes_with_everything_saved(tmp_path: Path, sig: sign
     output = resumed.communicate(timeout=600)[0]
     assert resumed.returncode == 0, output[-3000:]
     assert "Resuming the run" in output
+    if variant is not None:  # the variant's section, read back from the run's folder
+        from sb3_gcrl.zoo_train import CONFIG_FILE
+
+        section_file = run_dir / ENV_NAME / CONFIG_FILE
+        assert f"Loading hyperparameters from: {section_file}" in output
+        assert "ExecutedActionHerReplayBuffer" in section_file.read_text()
     assert [path.name for path in (tmp_path / "logs" / "sac").iterdir()] == [run_dir.name]  # the same run folder
     final = latest_checkpoint(run_dir)
     assert checkpoint_steps(final) == 3000  # the counter continued to the run's own budget

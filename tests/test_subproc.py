@@ -30,7 +30,7 @@ ENV_ID = "GCRL/PointUMazeGoal-v0"
 
 
 def config(name: str) -> dict[str, Any]:
-    """The hyperparameters of ``zoo_configs/<name>.yml`` for PointUMaze."""
+    """The hyperparameters of ``zoo_configs/<name>.yml`` for PointUMaze (the env's default section)."""
     return yaml.safe_load((REPO / "zoo_configs" / f"{name}.yml").read_text())[ENV_ID]
 
 
@@ -81,7 +81,7 @@ class WrapperExplorerCheck(BaseCallback):
 
 
 def test_morefree_trains_in_subprocess_envs_with_peg_goals_and_its_explorer() -> None:
-    hyperparams = config("morefree_pointumaze_morefree_cpu")
+    hyperparams = config("morefree")
     env = subprocess_env(hyperparams)
     try:
         model = MoReFree("MultiInputPolicy", env, seed=0, **{**TINY_ALGO, "learning_starts": 100})
@@ -120,7 +120,7 @@ def test_morefree_runs_alike_in_dummy_and_subprocess_envs() -> None:
 
 
 def test_sac_port_trains_in_subprocess_envs_with_the_wrappers_explorer() -> None:
-    hyperparams = config("reset_free_pointumaze_morefree")
+    hyperparams = config("sac")  # the model-free MoReFree port (SAC)
     assert "TaskRelevantHerReplayBuffer" in hyperparams["replay_buffer_class"]
     env = subprocess_env(hyperparams)
     try:
@@ -149,7 +149,7 @@ def test_zoo_trains_morefree_with_subprocess_envs(tmp_path: Path, capsys: pytest
     """``sb3-gcrl train --algo morefree ... --vec-env subproc`` with the CPU config's wrappers, tiny networks."""
     from sb3_gcrl.cli import main
 
-    hyperparams = config("morefree_pointumaze_morefree_cpu")
+    hyperparams = config("morefree")
     tiny = {key: hyperparams[key] for key in ("policy", "env_wrapper", "callback")}
     tiny.update(n_timesteps=800, n_envs=2, buffer_size=10_000, **{**TINY_ALGO, "learning_starts": 100})
     tiny["policy_kwargs"] = repr(TINY_ALGO["policy_kwargs"])

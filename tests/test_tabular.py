@@ -211,8 +211,8 @@ def test_no_sharing_ec_learns_from_its_own_episodes():
     # 2Mw/oDS on WindyGrid with the zoo config: EC learns only from the episodes it runs. Most early episodes are
     # cut by the 100-step limit; if cut episodes wrote nothing, EC's optimistic unvisited entries would never be
     # used up and EC would keep random-walking (seed 2: 5 EC updates in 30k steps).
-    with open(Path(__file__).parents[1] / "zoo_configs" / "tabular_2m_no_sharing.yml") as file:
-        config = dict(yaml.safe_load(file)[WINDY])
+    with open(Path(__file__).parents[1] / "zoo_configs" / "tabular_2m.yml") as file:
+        config = dict(yaml.safe_load(file)[f"{WINDY}@no_sharing"])  # the variant 2Mw/oDS
     for key in ("n_timesteps", "policy"):
         config.pop(key)
     assert config["data_sharing"] is False

@@ -32,13 +32,17 @@ def build_parser() -> argparse.ArgumentParser:
         prog="sb3-gcrl compare",
         description="Compare methods x envs x seeds: parallel runs, evaluation curves, IQM table, plots, report. "
         f"Without arguments: the '{DEFAULT_PRESET}' preset.",
-        epilog="A method is ALGO (hyperparameters found in zoo_configs/ALGO*.yml, then RL-Zoo's own), "
-        "ALGO:CONFIG (a .yml path or a zoo_configs/ stem) or LABEL=ALGO[:CONFIG]. Re-running the same command "
-        "resumes: finished runs are kept and skipped. Each run is a process with one torch (and OpenMP) thread.",
+        epilog="A method is ALGO (hyperparameters found as sb3-gcrl train finds them: zoo_configs/ALGO.yml, then "
+        "ALGO_thesis.yml, then RL-Zoo's own), ALGO@VARIANT (the section <env id>@VARIANT), ALGO[@VARIANT]:CONFIG "
+        "(a .yml path or a zoo_configs/ file name) or LABEL=ALGO[@VARIANT][:CONFIG]; --list-methods prints the "
+        "files with their env sections and variants. Re-running the same command resumes: finished runs are kept "
+        "and skipped. Each run is a process with one torch (and OpenMP) thread.",
     )
     parser.add_argument("--preset", help="start from a named comparison (see --list-presets); options override it")
     parser.add_argument("--list-presets", action="store_true", help="print the presets and exit")
-    parser.add_argument("--list-methods", action="store_true", help="print algorithms and zoo config files, exit")
+    parser.add_argument(
+        "--list-methods", action="store_true", help="print algorithms and zoo config files (envs, variants), exit"
+    )
     parser.add_argument("-m", "--methods", nargs="+", help="methods to compare")
     parser.add_argument("-e", "--envs", nargs="+", help="gymnasium env ids")
     seeds = parser.add_mutually_exclusive_group()
@@ -88,14 +92,17 @@ def _print_presets() -> None:
 
 
 def _print_methods(config_dir: Path) -> None:
-    from sb3_gcrl.compare.methods import available_algorithms, config_env_ids
+    from sb3_gcrl.compare.methods import available_algorithms
     from sb3_gcrl.compare.run import prepare_process
+    from sb3_gcrl.zoo_config import config_sections
 
     prepare_process(single_thread=False)
     print("algorithms:", " ".join(available_algorithms()))
-    print(f"zoo configs in {config_dir}:")
+    print(f"zoo configs in {config_dir} (env sections, with variants for ALGO@VARIANT):")
     for config in sorted(config_dir.glob("*.yml")):
-        print(f"  {config.stem}: {', '.join(config_env_ids(config))}")
+        sections = config_sections(config)
+        envs = ", ".join(env + (f" [{' '.join(variants)}]" if variants else "") for env, variants in sections.items())
+        print(f"  {config.stem}: {envs}")
 
 
 def main(argv: list[str] | None = None) -> int:

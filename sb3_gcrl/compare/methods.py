@@ -1,34 +1,47 @@
 """Methods of a comparison: a name that resolves to exactly what ``rl_zoo3 train`` would run.
 
-A *method* is an algorithm plus an RL-Zoo hyperparameter file (``policy``, ``env_wrapper``,
-``callback``, ``normalize``, ``policy_kwargs``... per environment id). Three spellings are accepted:
+A *method* is an algorithm plus a section of an RL-Zoo hyperparameter file (``policy``, ``env_wrapper``,
+``callback``, ``normalize``, ``policy_kwargs``... per environment id). Its hyperparameters are found as ``sb3-gcrl
+train`` finds them (:func:`sb3_gcrl.zoo_config.resolve_config`). The spellings:
 
 ``ALGO``
     an algorithm name, ours (:data:`sb3_gcrl.algorithms.ALGORITHMS`) or RL-Zoo's (``rl_zoo3.utils.ALGOS``).
-    Its hyperparameters for an env are looked up, in order, in ``zoo_configs/ALGO.yml``, in the
-    ``zoo_configs/ALGO_*.yml`` files (e.g. ``sac_ch4.yml``), then in RL-Zoo's own ``hyperparams/ALGO.yml``;
-    the first file with a section for the env id (or a ``default`` section) wins.
-``ALGO:CONFIG``
-    an explicit config: a path to a ``.yml``/``.py`` file or the stem of a file in ``zoo_configs/``
-    (``sac:reset_free_morefree``). The method is labelled with the config's file stem.
-``LABEL=ALGO[:CONFIG]``
-    the same with a chosen label for tables and plots (``morefree=sac:reset_free_morefree``).
+    Its hyperparameters for an env are looked up, in order, in ``zoo_configs/ALGO.yml``,
+    ``zoo_configs/ALGO_thesis.yml``, then RL-Zoo's own ``hyperparams/ALGO.yml``; the first file with a section for the
+    env id (or a ``default`` section) wins. Labelled ``ALGO``.
+``ALGO@VARIANT``
+    the same, with the section ``<env id>@VARIANT`` (``morefree@peg``: reset-free PEG). Labelled ``ALGO_VARIANT``.
+``ALGO[@VARIANT]:CONFIG``
+    an explicit config: a path to a ``.yml``/``.py`` file or the name of a file in ``zoo_configs/``
+    (``morefree@peg:morefree_thesis``). Labelled with the config's file stem (and ``_VARIANT``).
+``LABEL=ALGO[@VARIANT][:CONFIG]``
+    the same with a chosen label for tables and plots (``peg_world_model=morefree@peg``).
+
+A run stores the digest of its section (:attr:`~sb3_gcrl.zoo_config.ResolvedConfig.digest`), so a changed setting
+is never silently reused; a variant's section, which RL-Zoo does not read from its file, is written to the
+comparison's ``configs/`` folder and the run reads it from there.
 """
 
 from __future__ import annotations
 
 import difflib
-import hashlib
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import gymnasium as gym
 
-from sb3_gcrl.cli import ZOO_CONFIGS_DIR
-from sb3_gcrl.zoo_config import read_zoo_config
+from sb3_gcrl.zoo_config import (
+    VARIANT_SEPARATOR,
+    ZOO_CONFIGS_DIR,
+    ResolvedConfig,
+    config_sections,
+    find_config,
+    resolve_config,
+)
 
 _LABEL_RE = re.compile(r"^[A-Za-z0-9_.\-+]+$")
+_VARIANT_RE = re.compile(r"^[A-Za-z0-9_.\-+]+$")
 
 
 def available_algorithms() -> list[str]:
@@ -40,24 +53,13 @@ def available_algorithms() -> list[str]:
     return sorted(set(ALGORITHMS) | set(ALGOS))
 
 
-def _zoo_default_config(algo: str) -> Path:
-    import rl_zoo3
-
-    return Path(rl_zoo3.__file__).resolve().parent / "hyperparams" / f"{algo}.yml"
-
-
 def config_env_ids(config: Path) -> list[str]:
     """Environment ids (sections) of an RL-Zoo hyperparameter file; ``.py`` files expose ``hyperparams``.
 
     :param config: path of the file.
-    :return: its top-level keys (``default``/``atari`` included when present).
+    :return: the envs it has a section for (``default``/``atari`` included when present; variants not listed).
     """
-    return list(read_zoo_config(config))
-
-
-def _covers(config: Path, env_id: str) -> bool:
-    sections = config_env_ids(config)
-    return env_id in sections or "default" in sections
+    return list(config_sections(config))
 
 
 @dataclass(frozen=True)
@@ -67,84 +69,96 @@ class Method:
     :param label: name used in tables, plots and run folders.
     :param algo: key of ``rl_zoo3.utils.ALGOS`` once :func:`sb3_gcrl.cli.register_zoo_algorithms` ran.
     :param config: explicit hyperparameter file, or None to search for one per environment.
+    :param variant: the variant (sections ``<env id>@<variant>``), or None for the env's default section.
     """
 
     label: str
     algo: str
     config: Path | None = None
+    variant: str | None = None
 
-    def candidate_configs(self, config_dir: Path) -> list[Path]:
-        """Files searched for this method's hyperparameters, in priority order."""
-        if self.config is not None:
-            return [self.config]
-        own = [config_dir / f"{self.algo}.yml", *sorted(config_dir.glob(f"{self.algo}_*.yml"))]
-        return [path for path in [*own, _zoo_default_config(self.algo)] if path.is_file()]
-
-    def config_for(self, env_id: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Path:
-        """The hyperparameter file used on ``env_id``.
+    def resolve(self, env_id: str, config_dir: Path = ZOO_CONFIGS_DIR) -> ResolvedConfig:
+        """The file and section this method uses on ``env_id`` (:func:`~sb3_gcrl.zoo_config.resolve_config`).
 
         :param env_id: gymnasium id.
         :param config_dir: folder of the package's zoo configs.
-        :return: path of the first candidate file with a section for ``env_id`` (or ``default``).
+        :return: the resolved section.
+        :raises ValueError: no section for the env (or variant); the message names the files searched, the envs they
+            cover and the variants of the env.
+        """
+        try:
+            return resolve_config(self.algo, env_id, self.variant, self.config, config_dir)
+        except ValueError as error:
+            raise ValueError(f"Method {self.label!r}: {error}") from None
+
+    def config_for(self, env_id: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Path:
+        """The hyperparameter file used on ``env_id`` (:meth:`resolve`'s file).
+
+        :param env_id: gymnasium id.
+        :param config_dir: folder of the package's zoo configs.
+        :return: the file.
         :raises ValueError: when no file covers the env; the message lists the envs that are covered.
         """
-        candidates = self.candidate_configs(config_dir)
-        for config in candidates:
-            if _covers(config, env_id):
-                return config
-        covered = sorted({env for config in candidates for env in config_env_ids(config)})
-        searched = ", ".join(str(path) for path in candidates) or f"no {self.algo}*.yml file in {config_dir}"
-        raise ValueError(
-            f"Method {self.label!r} has no hyperparameters for env {env_id!r} (searched: {searched}). "
-            f"Envs it covers: {covered}. Add a section {env_id!r} to one of these files, or name a config "
-            f"explicitly with '{self.algo}:path/to/config.yml'."
-        )
+        return self.resolve(env_id, config_dir).path
+
+
+def _split_spec(spec: str) -> tuple[str, str, str, str]:
+    """``LABEL=ALGO@VARIANT:CONFIG`` -> ``(label, algo, variant, config)``, absent parts empty."""
+    label, _, body = spec.rpartition("=")
+    head, _, config_name = body.partition(":")
+    algo, _, variant = head.partition(VARIANT_SEPARATOR)
+    return label, algo, variant, config_name
 
 
 def method_label(spec: str) -> str:
-    """The label a method spec gets in tables, plots and run folders: ``LABEL``, else the config's stem, else ``ALGO``.
+    """The label a method spec gets in tables, plots and run folders: ``LABEL``, else the config's stem or ``ALGO``,
+    with ``_VARIANT`` for ``@VARIANT``.
 
-    :param spec: ``ALGO``, ``ALGO:CONFIG`` or ``LABEL=ALGO[:CONFIG]``.
+    :param spec: ``ALGO``, ``ALGO@VARIANT``, ``ALGO[@VARIANT]:CONFIG`` or ``LABEL=ALGO[@VARIANT][:CONFIG]``.
     :return: the label (not validated; :func:`parse_method` checks it).
     """
-    label, _, body = spec.rpartition("=")
-    algo, _, config_name = body.partition(":")
-    return label or (Path(config_name).stem if config_name else algo)
+    label, algo, variant, config_name = _split_spec(spec)
+    base = Path(config_name).stem if config_name else algo
+    return label or (f"{base}_{variant}" if variant else base)
 
 
 def parse_method(spec: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Method:
-    """Parse ``ALGO``, ``ALGO:CONFIG`` or ``LABEL=ALGO[:CONFIG]`` (see the module docstring).
+    """Parse ``ALGO[@VARIANT][:CONFIG]`` or ``LABEL=ALGO[@VARIANT][:CONFIG]`` (see the module docstring).
+
+    A config name of an earlier release (``sac:reset_free_pointumaze_naive``) still works, with a DeprecationWarning
+    naming the new spelling (:data:`~sb3_gcrl.zoo_config.OLD_CONFIG_NAMES`); the method keeps its label.
 
     :param spec: the method as written on the command line.
-    :param config_dir: folder where a bare config stem is looked up.
+    :param config_dir: folder where a bare config name is looked up.
     :return: the method.
-    :raises ValueError: unknown algorithm or missing config file; the message lists the valid choices.
+    :raises ValueError: unknown algorithm, missing config file or a bad label; the message lists the valid choices.
     """
-    label, _, body = spec.rpartition("=")
-    algo, _, config_name = body.partition(":")
+    _, algo, variant, config_name = _split_spec(spec)
     algos = available_algorithms()
     if algo not in algos:
         close = difflib.get_close_matches(algo, algos, n=3)
         hint = f" Did you mean {close}?" if close else ""
         raise ValueError(
-            f"Unknown method {spec!r}: {algo!r} is not an algorithm.{hint} Valid algorithms: {algos}. "
-            "A method is ALGO, ALGO:CONFIG (a .yml path or a stem in zoo_configs/) or LABEL=ALGO[:CONFIG]."
+            f"Unknown method {spec!r}: {algo!r} is not an algorithm.{hint} Valid algorithms: {algos}. A method is "
+            "ALGO, ALGO@VARIANT, ALGO[@VARIANT]:CONFIG (a .yml path or a file name in zoo_configs/) or "
+            "LABEL=ALGO[@VARIANT][:CONFIG]."
         )
+    if variant and not _VARIANT_RE.match(variant):
+        raise ValueError(f"Variant {variant!r} of method {spec!r} may only use letters, digits and _ . - +")
     config: Path | None = None
+    implied: str | None = None
     if config_name:
-        config = Path(config_name)
-        if not config.suffix:
-            config = config_dir / f"{config_name}.yml"
-        if not config.is_file():
-            stems = sorted(path.stem for path in config_dir.glob("*.yml"))
-            raise ValueError(
-                f"Config {config_name!r} of method {spec!r} not found at {config}. Files in {config_dir}: {stems}"
-            )
+        try:
+            config, implied = find_config(config_name, config_dir)
+        except ValueError as error:
+            raise ValueError(f"Method {spec!r}: {error}") from None
         config = config.resolve()
+        if implied is not None and variant and variant != implied:
+            raise ValueError(f"Method {spec!r}: config {config_name!r} is variant {implied!r}, not {variant!r}")
     label = method_label(spec)
     if not _LABEL_RE.match(label):
         raise ValueError(f"Method label {label!r} may only use letters, digits and _ . - + (it names folders)")
-    return Method(label=label, algo=algo, config=config)
+    return Method(label=label, algo=algo, config=config, variant=variant or implied)
 
 
 def check_env_id(env_id: str) -> None:
@@ -161,8 +175,3 @@ def check_env_id(env_id: str) -> None:
         f"Unknown env {env_id!r}. Close matches: {close}. This package's envs: {ours}. "
         "Envs of another package need `--gym-packages <module>` (the module must register them on import)."
     )
-
-
-def file_digest(path: Path) -> str:
-    """Short SHA-256 of a file, stored with each run so that a changed config is never silently reused."""
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]

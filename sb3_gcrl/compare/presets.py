@@ -65,47 +65,31 @@ class Preset:
         return kwargs
 
 
-def config_methods(algo: str, pattern: str, names: tuple[str, ...]) -> tuple[str, ...]:
-    """Method specs ``NAME=ALGO:CONFIG`` for a family of zoo configs (``pattern`` holds ``{name}``).
+def variant_methods(algo: str, names: tuple[str, ...], default: str | None = None) -> tuple[str, ...]:
+    """Method specs ``NAME=ALGO@NAME`` for variants of one algorithm's sections, labelled by variant.
 
     :param algo: algorithm of every method.
-    :param pattern: zoo config stem with a ``{name}`` field, e.g. ``"reset_free_pointumaze_{name}"``.
-    :param names: the family members, which also label the methods.
+    :param names: the variants, which also label the methods.
+    :param default: the name that stands for the env's default section (``NAME=ALGO``), if one of ``names``.
     :return: the method specs.
     """
-    return tuple(f"{name}={algo}:{pattern.format(name=name)}" for name in names)
+    return tuple(f"{name}={algo}" if name == default else f"{name}={algo}@{name}" for name in names)
 
 
-def world_model_methods(task: str) -> tuple[str, ...]:
-    """World-model MoReFree, reset-free PEG (the same agent, alpha = 0; CPU presets) and the MoReFree-SAC port on
-    one reset-free task (``zoo_configs/morefree_<task>_{morefree,peg}_cpu.yml``, ``reset_free_<task>_morefree.yml``).
-
-    :param task: config name of the task, e.g. ``"pointumaze"``.
-    :return: the method specs, labelled so that the two MoReFree agents are never confused.
-    """
-    return (
-        f"morefree_world_model=morefree:morefree_{task}_morefree_cpu",
-        f"peg_world_model=morefree:morefree_{task}_peg_cpu",
-        f"morefree_sac_port=sac:reset_free_{task}_morefree",
-    )
-
-
-def baseline_methods(task: str) -> tuple[str, ...]:
-    """Ch. 3's reset-free baselines IBC, MEDAL and R3L on one task: IBC's CPU preset
-    (``zoo_configs/ibc_<task>_cpu.yml``: 2 x 256 networks and batch 256 instead of the official 3 x 512 and 512,
-    which train at about 10 env steps/s on one core), MEDAL and R3L as configured (``<algo>_<task>.yml``, already
-    2 x 256 and batch 256).
-
-    :param task: config name of the task, e.g. ``"tabletop"``.
-    :return: the method specs, labelled by algorithm.
-    """
-    return (f"ibc=ibc:ibc_{task}_cpu", f"medal=medal:medal_{task}", f"r3l=r3l:r3l_{task}")
-
-
-#: Ch. 3 methods of Fig. 3.4 and the ablations of Sec. 3.5.3 (``zoo_configs/reset_free_pointumaze_<name>.yml``)
+#: MoReFree (world model), reset-free PEG (the same agent, alpha = 0) and the model-free MoReFree port (SAC) on a
+#: reset-free task (the default sections of ``morefree.yml``, its CPU presets, and of ``sac.yml``), labelled so that
+#: the two MoReFree agents are never confused
+WORLD_MODEL_METHODS = ("morefree_world_model=morefree", "peg_world_model=morefree@peg", "morefree_sac_port=sac")
+#: Ch. 3's reset-free baselines IBC, MEDAL and R3L, labelled by algorithm: their default sections (IBC's CPU sizes,
+#: ``ibc.yml``: 2 x 256 networks and batch 256 instead of the official 3 x 512 and 512 of ``ibc_thesis.yml``, which
+#: train at about 10 env steps/s on one core; MEDAL and R3L as configured, already 2 x 256 and batch 256)
+BASELINE_METHODS = ("ibc=ibc", "medal=medal", "r3l=r3l")
+#: Ch. 3 methods of Fig. 3.4 and the ablations of Sec. 3.5.3: the model-free MoReFree port (SAC, ``morefree``: the
+#: default section of ``sac.yml``) and its baselines and ablations (variants of ``sac.yml``)
 CH3_METHODS = ("oracle", "naive", "goexplore", "morefree")
 CH3_ABLATIONS = ("wo_bf", "wo_relabel", "alpha1")
-#: Ch. 6 variants (``zoo_configs/post_exploration_<task>_<variant>.yml``)
+#: Ch. 6 post-exploration settings (variants ``off``/``on`` of ``imgep.yml``/``ddpg.yml``; ``adaptive``, ours, is
+#: their default section)
 CH6_VARIANTS = ("off", "on", "adaptive")
 #: MinAtar settings that are env constructor arguments (not RL-Zoo YAML keys): the authors' Breakout sticky-action
 #: probability, and a time limit (MinAtar registers none; a greedy policy can otherwise keep an episode going forever)
@@ -127,8 +111,8 @@ PRESETS: dict[str, Preset] = {
     ),
     "ch3": Preset(
         description="Reset-free PointUMaze: episodic oracle vs naive reset-free vs Go-Explore (alpha = 0) vs "
-        "the MoReFree-SAC port",
-        methods=config_methods("sac", "reset_free_pointumaze_{name}", CH3_METHODS),
+        "the model-free MoReFree port (SAC)",
+        methods=variant_methods("sac", CH3_METHODS, default="morefree"),
         envs=("GCRL/PointUMazeGoal-v0",),
         seeds=(0, 1, 2),
         n_timesteps=100_000,
@@ -137,9 +121,9 @@ PRESETS: dict[str, Preset] = {
         thesis="Fig. 3.4-3.5 (PointUMaze panel) at 10% of the thesis's 1e6 steps, model-free port of MoReFree",
     ),
     "ch3-ablations": Preset(
-        description="MoReFree ablations on reset-free PointUMaze: without Back-and-Forth, without task-relevant "
-        "relabeling, only task goals (alpha = 1)",
-        methods=config_methods("sac", "reset_free_pointumaze_{name}", CH3_ABLATIONS),
+        description="Ablations of the model-free MoReFree port (SAC) on reset-free PointUMaze: without "
+        "Back-and-Forth, without task-relevant relabeling, only task goals (alpha = 1)",
+        methods=variant_methods("sac", CH3_ABLATIONS),
         envs=("GCRL/PointUMazeGoal-v0",),
         seeds=(0, 1, 2),
         n_timesteps=100_000,
@@ -148,9 +132,9 @@ PRESETS: dict[str, Preset] = {
         thesis="Sec. 3.5.3 ablations at 10% of the thesis's 1e6 steps, model-free port",
     ),
     "ch3-world-model": Preset(
-        description="Reset-free PointUMaze: world-model MoReFree vs reset-free PEG (the same agent, alpha = 0) vs "
-        "the MoReFree-SAC port, equal env steps, CPU presets",
-        methods=world_model_methods("pointumaze"),
+        description="Reset-free PointUMaze: MoReFree (world model) vs reset-free PEG (the same agent, alpha = 0) vs "
+        "the model-free MoReFree port (SAC), equal env steps, CPU presets",
+        methods=WORLD_MODEL_METHODS,
         envs=("GCRL/PointUMazeGoal-v0",),
         seeds=(0, 1, 2),
         n_timesteps=20_000,
@@ -160,9 +144,9 @@ PRESETS: dict[str, Preset] = {
         "the thesis's 1e6 steps; the world-model agents' CPU presets take about 1 h of one core per 50k steps",
     ),
     "ch3-baselines": Preset(
-        description="Reset-free PointUMaze: IBC, MEDAL and R3L beside world-model MoReFree, reset-free PEG and the "
-        "MoReFree-SAC port, equal env steps",
-        methods=(*baseline_methods("pointumaze"), *world_model_methods("pointumaze")),
+        description="Reset-free PointUMaze: IBC, MEDAL and R3L beside MoReFree (world model), reset-free PEG and the "
+        "model-free MoReFree port (SAC), equal env steps",
+        methods=(*BASELINE_METHODS, *WORLD_MODEL_METHODS),
         envs=("GCRL/PointUMazeGoal-v0",),
         seeds=(0, 1, 2),
         n_timesteps=100_000,
@@ -172,9 +156,9 @@ PRESETS: dict[str, Preset] = {
         "steps",
     ),
     "ch3-baselines-tabletop": Preset(
-        description="Reset-free Tabletop: IBC, MEDAL and R3L beside world-model MoReFree, reset-free PEG and the "
-        "MoReFree-SAC port, equal env steps",
-        methods=(*baseline_methods("tabletop"), *world_model_methods("tabletop")),
+        description="Reset-free Tabletop: IBC, MEDAL and R3L beside MoReFree (world model), reset-free PEG and the "
+        "model-free MoReFree port (SAC), equal env steps",
+        methods=(*BASELINE_METHODS, *WORLD_MODEL_METHODS),
         envs=("GCRL/Tabletop-v0",),
         seeds=(0, 1, 2),
         n_timesteps=100_000,
@@ -216,7 +200,7 @@ PRESETS: dict[str, Preset] = {
     ),
     "ch5-minatar": Preset(
         description="2M (TwoMemoryDQN) vs DQN vs MFEC on MinAtar Breakout",
-        methods=("2m=two_memory_dqn", "dqn=dqn:dqn_minatar", "mfec"),
+        methods=("2m=two_memory_dqn", "dqn", "mfec"),
         envs=("MinAtar/Breakout-v1",),
         seeds=(0, 1, 2),
         n_timesteps=100_000,
@@ -227,7 +211,7 @@ PRESETS: dict[str, Preset] = {
     ),
     "ch6": Preset(
         description="Tabular IMGEP on FourRooms: post-exploration off vs on (p_pe = 0.5) vs adaptive (ours)",
-        methods=config_methods("imgep", "post_exploration_fourrooms_{name}", CH6_VARIANTS),
+        methods=variant_methods("imgep", CH6_VARIANTS, default="adaptive"),
         envs=("GCRL/FourRoomsTabular-v0",),
         seeds=(0, 1, 2, 3, 4),
         n_timesteps=100_000,
@@ -238,7 +222,7 @@ PRESETS: dict[str, Preset] = {
     ),
     "ch6-deep": Preset(
         description="Deep IMGEP (DDPG + HER) on FetchReach: post-exploration off vs on vs adaptive (ours)",
-        methods=config_methods("ddpg", "post_exploration_fetchreach_ddpg_{name}", CH6_VARIANTS),
+        methods=variant_methods("ddpg", CH6_VARIANTS, default="adaptive"),
         envs=("FetchReach-v4",),
         seeds=(0, 1, 2, 3, 4),
         n_timesteps=10_000,
@@ -275,7 +259,7 @@ def smoke_test(of: str, n_timesteps: int, eval_freq: int, **changes: Any) -> Pre
 PRESETS.update(
     {
         "ch3-quick": smoke_test(
-            "ch3", 600, 300, methods=config_methods("sac", "reset_free_pointumaze_{name}", ("naive", "morefree"))
+            "ch3", 600, 300, methods=variant_methods("sac", ("naive", "morefree"), default="morefree")
         ),
         "ch3-baselines-quick": smoke_test("ch3-baselines", 600, 300),
         "ch4-quick": smoke_test("ch4", 400, 200, envs=("GCRL/PointUMaze-v0",)),
@@ -332,7 +316,7 @@ def select_methods(names: Sequence[str], labels: Sequence[str] | None = None) ->
     """Method specs of the presets ``names`` whose labels are in ``labels`` (all of them when ``labels`` is None).
 
     :param names: preset names; their methods are pooled in order, and where two presets use one label for
-        different specs (``ibc`` on PointUMaze and on Tabletop) the first preset's spec is kept.
+        different specs the first preset's spec is kept.
     :param labels: labels to keep, in the order wanted.
     :return: the method specs.
     :raises ValueError: a label that none of the presets has; the message lists the valid labels.

@@ -12,11 +12,11 @@ from typing import Any
 
 from sb3_gcrl.cli import ZOO_CONFIGS_DIR
 from sb3_gcrl.compare.backends import Backend, Job, LocalProcessBackend, RayBackend
-from sb3_gcrl.compare.methods import Method, check_env_id, file_digest, parse_method
+from sb3_gcrl.compare.methods import Method, check_env_id, parse_method
 from sb3_gcrl.compare.report import Summary, summarize, write_outputs
 from sb3_gcrl.compare.run import RunSpec, prepare_process
 from sb3_gcrl.compare.storage import atomic_write_text, is_finished, lock_output
-from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks, zoo_config_section
+from sb3_gcrl.zoo_config import ResolvedConfig, check_hyperparameters, check_mode_switching_callbacks
 
 #: evaluations per run when ``eval_freq`` is not given
 DEFAULT_N_EVALUATIONS = 20
@@ -104,12 +104,11 @@ class ProgressDisplay:
         self.bar.close()
 
 
-def _config_budget(config: Path, env_id: str) -> int:
-    """``n_timesteps`` of the config section RL-Zoo would use for ``env_id``."""
-    section = zoo_config_section(config, env_id) or {}
-    if "n_timesteps" not in section:
-        raise ValueError(f"{config} gives no n_timesteps for {env_id}: pass a budget (--n-timesteps)")
-    return int(float(section["n_timesteps"]))
+def _config_budget(resolved: ResolvedConfig) -> int:
+    """``n_timesteps`` of the section a run uses."""
+    if "n_timesteps" not in resolved.hyperparams:
+        raise ValueError(f"{resolved.where} gives no n_timesteps: pass a budget (--n-timesteps)")
+    return int(float(resolved.hyperparams["n_timesteps"]))
 
 
 def make_backend(backend: Backend | str, n_workers: int | None = None, ray_address: str | None = None) -> Backend:
@@ -140,27 +139,35 @@ def plan_runs(
     config_dir: Path,
     save_models: bool = False,
     env_kwargs: dict[str, Any] | None = None,
+    config_folder: Path | None = None,
 ) -> list[RunSpec]:
     """Every run (env-major, then method, then seed), with its config resolved; raises before anything runs.
+
+    A run's ``config_digest`` is its section's (a changed setting is never silently reused); a variant's section,
+    which RL-Zoo does not read from its file, is written to ``config_folder`` (default: a ``sb3_gcrl_configs`` folder
+    in the temporary directory) and the run's ``config`` is that file.
 
     :raises ValueError: a method has no hyperparameters for an env (the message lists what it covers), or a
         hyperparameter (config or override) is not an argument of the algorithm (named with close matches).
     """
+    import tempfile
+
+    folder = config_folder if config_folder is not None else Path(tempfile.gettempdir()) / "sb3_gcrl_configs"
     specs = []
     for env_id in envs:
         for method in methods:
-            config = method.config_for(env_id, config_dir)
-            section = {**(zoo_config_section(config, env_id) or {}), **hyperparams}
-            check_mode_switching_callbacks(section, f"{config} ({env_id})")
-            check_hyperparameters(method.algo, section, f"{config} (section {env_id})", list(hyperparams), RUN_SET_HINT)
-            budget = n_timesteps if n_timesteps is not None else _config_budget(config, env_id)
+            resolved = method.resolve(env_id, config_dir)
+            section = {**resolved.hyperparams, **hyperparams}
+            check_mode_switching_callbacks(section, resolved.where)
+            check_hyperparameters(method.algo, section, resolved.where, list(hyperparams), RUN_SET_HINT)
+            budget = n_timesteps if n_timesteps is not None else _config_budget(resolved)
             frequency = eval_freq if eval_freq is not None else max(1, budget // DEFAULT_N_EVALUATIONS)
             specs.extend(
                 RunSpec(
                     method=method.label,
                     algo=method.algo,
-                    config=str(config),
-                    config_digest=file_digest(config),
+                    config=str(resolved.zoo_file(folder)),
+                    config_digest=resolved.digest,
                     env_id=env_id,
                     seed=int(seed),
                     n_timesteps=budget,
@@ -230,7 +237,8 @@ def compare(
     Output files (see :mod:`sb3_gcrl.compare.storage`): per-run ``evaluations.csv``, ``curves.csv``,
     ``scores.csv``, ``summary.csv``, ``curves.png`` and ``report.md``.
 
-    :param methods: method specs (``ALGO``, ``ALGO:CONFIG``, ``LABEL=ALGO[:CONFIG]``) or :class:`Method` objects.
+    :param methods: method specs (``ALGO``, ``ALGO@VARIANT``, ``ALGO[@VARIANT]:CONFIG``,
+        ``LABEL=ALGO[@VARIANT][:CONFIG]``) or :class:`Method` objects.
     :param envs: gymnasium ids.
     :param seeds: run seeds.
     :param n_timesteps: budget per run; default: each config's ``n_timesteps`` for the env.
@@ -271,15 +279,15 @@ def compare(
     parsed = [m if isinstance(m, Method) else parse_method(m, config_dir) for m in methods]
     labels = [m.label for m in parsed]
     if len(set(labels)) != len(labels):
-        raise ValueError(f"Method labels must be distinct, got {labels}; name them with LABEL=ALGO[:CONFIG]")
+        raise ValueError(f"Method labels must be distinct, got {labels}; name them with LABEL=ALGO[@VARIANT][:CONFIG]")
     for env_id in envs:
         check_env_id(env_id)
+    output = Path(output)
     specs = plan_runs(
         parsed, envs, seeds, n_timesteps, eval_freq, n_eval_episodes, hyperparams or {}, gym_packages, config_dir,
-        save_models, env_kwargs,
+        save_models, env_kwargs, output / "configs",
     )  # fmt: skip
 
-    output = Path(output)
     # one compare per folder at a time: a second one would race this one's workers (its lock names our pid)
     with lock_output(output):
         jobs: list[Job] = []

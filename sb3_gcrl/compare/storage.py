@@ -5,6 +5,8 @@
     OUT/
       compare.lock               pid of the compare process using the folder (held with flock while it runs)
       comparison.json            settings of the last invocation
+      configs/                   the sections of variants (``ALGO@VARIANT``), which RL-Zoo reads from a file keyed by
+                                 the plain env id; named by content (file stem, variant, env, settings digest)
       runs/ENV/METHOD/seed_S/
         evaluations.csv          one row per evaluation (see EVALUATION_COLUMNS)
         all_goals.csv            all-goals success, visitation entropy, coverage at the evaluation points (runs
@@ -203,8 +205,8 @@ def is_finished(run_dir: Path, spec: RunSpec, notes: list[str] | None = None) ->
         notes.append(problem)
     if record is None or record["status"] != "finished":
         return False
-    # the config is compared by content digest, not path (an output folder may move with its repository);
-    # fields that a run.json of an older version lacks count as their defaults
+    # the config is compared by the digest of the run's section, not its path (an output folder may move with its
+    # repository); fields that a run.json of an older version lacks count as their defaults
     defaults = RunSpec.defaults()
     stored = {key: value for key, value in {**defaults, **record.get("spec", {})}.items() if key != "config"}
     # compared in their JSON form: a tuple in hyperparams/env_kwargs comes back from run.json as a list
