@@ -1,7 +1,7 @@
 """Training speed of TwoMemoryDQN vs SB3 DQN on MinAtar (same network, same training schedule).
 
 Both agents are built by RL-Zoo from the shipped zoo configs, exactly as ``sb3-gcrl train`` builds them:
-``zoo_configs/dqn_minatar.yml`` (DQN with the authors' MinAtar network) and ``zoo_configs/two_memory_dqn.yml``
+``zoo_configs/dqn.yml`` (DQN with the authors' MinAtar network) and ``zoo_configs/two_memory_dqn.yml``
 (2M; also run with ``p_ec_schedule = 1``, i.e. every episode acted by MFEC). Runs are interleaved in one process
 (``--repeats`` rounds of: DQN, 2M, 2M with p_ec = 1) and each is timed over ``--steps`` training env steps after
 its own warm-up; medians and the 2M/DQN ratio are printed. ``torch.set_num_threads(1)``.
@@ -27,7 +27,7 @@ from sb3_gcrl.compare.run import prepare_process
 
 #: kind -> (algorithm, zoo config, hyperparameter overrides of the benchmark variant)
 KINDS: dict[str, tuple[str, str, dict[str, Any]]] = {
-    "dqn": ("dqn", "dqn_minatar.yml", {}),
+    "dqn": ("dqn", "dqn.yml", {}),
     "2m": ("two_memory_dqn", "two_memory_dqn.yml", {}),
     "2m_pec1": ("two_memory_dqn", "two_memory_dqn.yml", {"p_ec_schedule": 1.0}),  # MFEC acts in every episode
 }

@@ -1,8 +1,9 @@
-"""Why the world-model MoReFree agent learns, or does not: its pieces probed against PointUMaze's true geometry.
+"""Why MoReFree (world model) learns, or does not: its pieces probed against PointUMaze's true geometry.
 
-Trains the CPU preset on reset-free PointUMaze (``zoo_configs/morefree_pointumaze_morefree_cpu.yml``: its wrappers
-and settings) for ``--steps`` env steps, probing every ``--every`` steps, or loads a saved model (``--load``, with
-its replay buffer from ``--load-buffer``, since the probes read replayed states), and prints a table:
+Trains the CPU preset on reset-free PointUMaze (the ``GCRL/PointUMazeGoal-v0`` section of
+``zoo_configs/morefree.yml``: its wrappers and settings) for ``--steps`` env steps, probing every ``--every`` steps, or
+loads a saved model (``--load``, with its replay buffer from ``--load-buffer``, since the probes read replayed states),
+and prints a table:
 
 * distance rank correlation: Spearman correlation of the learned distance ``D(s, g)`` with the shortest-path
   distance through the maze, over replayed states ``s`` and replayed goals ``g`` (and, ``task``, the evaluation
@@ -16,7 +17,8 @@ with the evaluation success (deterministic pi_G, the task's own 300-step episode
     python scripts/diagnose_morefree.py --steps 50000 --every 10000          # about 1 h on one core
     python scripts/diagnose_morefree.py --load run.zip --load-buffer run_buffer.pkl
 
-``--config`` picks another shipped config of the world-model agent (e.g. ``morefree_pointumaze_peg_cpu``).
+``--variant`` picks a variant of that section (e.g. ``peg``: reset-free PEG), ``--config`` another file (e.g.
+``morefree_thesis``, the thesis's scale).
 """
 
 from __future__ import annotations
@@ -29,7 +31,6 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import torch as th
-import yaml
 from rl_zoo3.utils import get_wrapper_class
 from stable_baselines3.common.env_util import make_vec_env
 
@@ -37,8 +38,7 @@ import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
 from sb3_gcrl.morefree import MoReFree
 from sb3_gcrl.morefree.diagnostics import diagnose
-
-CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"
+from sb3_gcrl.zoo_config import resolve_config
 
 
 def evaluate(model: MoReFree, env_id: str, episodes: int) -> tuple[float, float]:
@@ -70,7 +70,9 @@ def row(model: MoReFree, env: gym.Env, env_id: str, episodes: int, wall: float, 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default="morefree_pointumaze_morefree_cpu", help="config stem in zoo_configs/")
+    parser.add_argument("--env", default="GCRL/PointUMazeGoal-v0", help="env (section of the config)")
+    parser.add_argument("--variant", help="variant of the env's section, e.g. peg (reset-free PEG)")
+    parser.add_argument("--config", help="config file or shipped name (default: zoo_configs/morefree.yml)")
     parser.add_argument("--steps", type=int, default=50_000, help="env steps to train")
     parser.add_argument("--every", type=int, default=10_000, help="env steps between probes")
     parser.add_argument("--episodes", type=int, default=10, help="evaluation episodes per probe")
@@ -83,7 +85,7 @@ def main() -> None:
     args = parser.parse_args()
     th.set_num_threads(args.num_threads)
 
-    ((env_id, hyperparams),) = yaml.safe_load((CONFIGS / f"{args.config}.yml").read_text()).items()
+    env_id, hyperparams = args.env, resolve_config("morefree", args.env, args.variant, args.config).hyperparams
     vec_env = make_vec_env(env_id, n_envs=1, seed=args.seed, wrapper_class=get_wrapper_class(hyperparams))
     env = vec_env.envs[0]
     print(

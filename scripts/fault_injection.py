@@ -39,14 +39,14 @@ RUNS: dict[str, dict[str, Any]] = {
     "sac": {
         "env": "GCRL/PointUMazeGoal-v0",
         "arguments": [
-            "--algo", "sac", "-conf", "reset_free_pointumaze_morefree_cpu", "-n", "4000", "--save-freq", "500",
+            "--algo", "sac", "-n", "4000", "--save-freq", "500",
             "-params", "learning_starts:1000", "batch_size:32", "policy_kwargs:dict(net_arch=[32])",
         ],
     },
     "morefree": {
         "env": "GCRL/PointUMazeGoal-v0",
         "arguments": [
-            "--algo", "morefree", "-conf", "morefree_pointumaze_morefree_cpu", "-n", "1600", "--save-freq", "200",
+            "--algo", "morefree", "-n", "1600", "--save-freq", "200",
             "-params", "learning_starts:1200", "compile_train_step:False",
         ],
     },

@@ -1,10 +1,11 @@
 """Reproduce the reset-free comparisons of thesis Ch. 3 (Fig. 3.4, Fig. 3.5) on PointUMaze and Tabletop.
 
 The runs are the ``ch3`` / ``ch3-ablations`` / ``ch3-world-model`` / ``ch3-baselines`` / ``ch3-baselines-tabletop``
-comparison presets of ``sb3-gcrl compare`` (the model-free SAC+HER port of MoReFree and its ablations, the
-world-model agents, IBC, MEDAL and R3L): each method is a plain
-RL-Zoo run of ``zoo_configs/reset_free_pointumaze_<method>.yml`` (what ``sb3-gcrl train --algo sac -conf ...``
-runs), evaluated on RL-Zoo's eval env, which has the same ``env_wrapper`` and stays episodic (start in rho_0, goal
+comparison presets of ``sb3-gcrl compare`` (the model-free MoReFree port (SAC) and its baselines and ablations,
+MoReFree (world model) and reset-free PEG, IBC, MEDAL and R3L): each method is a plain RL-Zoo run of a section of
+``zoo_configs/<algo>.yml`` (the port: the env's section of ``sac.yml``, its baselines and ablations the variants
+``<env id>@<method>``; what ``sb3-gcrl train --algo sac --env ... [--variant METHOD]`` runs), evaluated on RL-Zoo's
+eval env, which has the same ``env_wrapper`` and stays episodic (start in rho_0, goal
 from rho_g*, T_eval steps). This script only picks methods, budget and seeds, and adds the chapter's table:
 per method the final success (mean of the last ``--final-evals`` evaluations; per seed), the mean over all
 evaluations, and the task-relevant share of the replay buffer (Sec. 3.8: achieved goals within the env's success
@@ -14,7 +15,8 @@ keeps per run (``visited_goals.npy``, up to 20,000 evenly spaced over training).
 report, the curves and the Fig. 3.5-style heatmaps (``visitation_<env>.png``; Tabletop's shows the mug, as Fig. 3.9);
 the table is also written to ``ch3_summary.csv``. For the world-model agents it also prints their probes over training
 (distance vs shortest path, goal sensitivity, critic calibration: ``sb3_gcrl.morefree.diagnostics``, logged by the
-PointUMaze CPU configs every 10k steps), mean over seeds, and writes them to ``ch3_diagnostics.csv``.
+PointUMaze CPU presets of ``morefree.yml`` every 10k steps), mean over seeds, and writes them to
+``ch3_diagnostics.csv``.
 
 Example (what docs/results.md quotes)::
 

@@ -2,7 +2,7 @@
 
 The runs are the ``ch4`` comparison preset of ``sb3-gcrl compare`` (``quick`` is its GrowingTree part), or with
 ``--preset ch4-navigation`` Fig. 4.3's three-way comparison (CEC, SAC, EMAC on PointUMaze, Point4Rooms with
-sub-goals, PointGoal, CarGoal): hyperparameters come from ``zoo_configs/cec.yml``, ``zoo_configs/sac_ch4.yml`` and
+sub-goals, PointGoal, CarGoal): hyperparameters come from ``zoo_configs/cec.yml``, ``zoo_configs/sac.yml`` and
 ``zoo_configs/emac.yml`` (what ``sb3-gcrl train`` uses),
 and every ``--eval-freq`` steps each agent is evaluated greedily for ``--eval-episodes`` episodes on a separate
 env (success: ``info["is_success"]``; all four tasks reward only reaching the goal). This script picks tasks,

@@ -2,7 +2,7 @@
 
 The runs are the ``ch5`` (WindyGrid: tabular 2M, Q-learning, EC) and ``ch5-minatar`` (TwoMemoryDQN, DQN with the
 authors' network, MFEC) comparison presets, so every setting comes from ``zoo_configs/`` (``tabular_*.yml``,
-``two_memory_dqn.yml``, ``dqn_minatar.yml``, ``mfec.yml``); this script only chooses the budget and the seeds and
+``two_memory_dqn.yml``, ``dqn.yml``, ``mfec.yml``); this script only chooses the budget and the seeds and
 adds the chapter's table. Each subcommand writes a comparison folder (``<out>/windygrid``, ``<out>/<game>``) with
 what ``sb3-gcrl compare`` writes (``report.md``, ``curves.png``, ``memory_*.png``: Fig. 5.6's top row); ``report``
 re-reads every such folder and prints, per agent, the median [min, max] return over seeds at 10/25/50/100% of

@@ -1,11 +1,13 @@
 """Reproduce the post-exploration ablation of thesis Ch. 6 (Fig. 6.3-6.6, Tables 6.2-6.3) via ``sb3-gcrl compare``.
 
-Every run is a comparison run of ``zoo_configs/post_exploration_<task>_<variant>.yml`` (``off`` = no
-post-exploration, ``on`` = Table 6.2/6.3 post-exploration, ``adaptive`` = our novelty-adaptive length): tabular
+Every run is a comparison run of a section of ``zoo_configs/imgep.yml``, ``ddpg.yml`` or ``sac.yml`` (``off`` = no
+post-exploration, ``on`` = Table 6.2/6.3 post-exploration: the variants ``<env id>@off`` / ``@on``, and
+``@post_exploration_off`` / ``@post_exploration_on`` of ``sac.yml``; ``adaptive`` = our novelty-adaptive length, the
+default section of ``imgep.yml`` and ``ddpg.yml``): tabular
 IMGEP (:class:`~sb3_gcrl.imgep.TabularIMGEP`, ``--algo imgep``) on FourRooms, LavaGap and LavaCrossing (presets
 ``ch6``, ``ch6-quick``), deep IMGEP (DDPG or SAC + HER with
 :class:`~sb3_gcrl.post_exploration.PostExplorationWrapper`) on FetchReach and PointUMaze (preset ``ch6-deep``).
-Settings come only from those files; this script picks tasks, variants, budget, seeds (and, for the lava tasks,
+Settings come only from those sections; this script picks tasks, variants, budget, seeds (and, for the lava tasks,
 one layout per seed: the thesis's "environment seeds"; ``--epsilons`` repeats tabular runs with other exploration
 rates, Table 6.2 averages epsilon in {0, 0.1, 0.3}).
 
@@ -45,7 +47,7 @@ import pandas as pd
 from sb3_gcrl.analysis.curves import aggregate_curves
 from sb3_gcrl.analysis.plots import plot_learning_curves
 from sb3_gcrl.analysis.statistics import run_scores
-from sb3_gcrl.compare.presets import CH6_VARIANTS, config_methods, get_preset, run_preset
+from sb3_gcrl.compare.presets import CH6_VARIANTS, get_preset, run_preset, variant_methods
 from sb3_gcrl.compare.report import ALL_GOALS_METRIC
 from sb3_gcrl.compare.storage import ALL_GOALS_FILE
 
@@ -57,6 +59,15 @@ TABULAR_TASKS = {
 }
 #: deep tasks: env id (their goal grids are named in the configs' AllGoalsEvalCallback)
 DEEP_TASKS = {"FetchReach": "FetchReach-v4", "PointUMaze": "GCRL/PointUMazeGoal-v0"}
+
+
+def post_exploration_methods(algo: str, variants: list[str]) -> tuple[str, ...]:
+    """Method specs of the post-exploration settings ``variants`` (``off``, ``on``, ``adaptive``) of ``algo``,
+    labelled by setting: variants of ``imgep.yml`` / ``ddpg.yml`` (``adaptive``: their default section), or
+    ``post_exploration_<setting>`` of ``sac.yml`` (which has no adaptive setting)."""
+    if algo == "sac":
+        return tuple(f"{variant}=sac@post_exploration_{variant}" for variant in variants)
+    return variant_methods(algo, tuple(variants), default="adaptive")
 
 
 def _model_file(run_dir: Path) -> Path:
@@ -99,10 +110,10 @@ def run_task(task: str, args: argparse.Namespace) -> list[dict[str, Any]]:
     """Run the comparisons of one task and evaluate every finished run."""
     if task in TABULAR_TASKS:
         env_id, layout_per_seed = TABULAR_TASKS[task]
-        preset, pattern = ("ch6-quick" if args.quick else "ch6"), f"post_exploration_{task.lower()}_{{name}}"
+        preset, algo = ("ch6-quick" if args.quick else "ch6"), "imgep"
     else:
         env_id, layout_per_seed = DEEP_TASKS[task], False
-        preset, pattern = "ch6-deep", f"post_exploration_{task.lower()}_{args.algo}_{{name}}"
+        preset, algo = "ch6-deep", args.algo
     seeds = list(range(args.seeds)) if args.seeds is not None else list(get_preset(preset).seeds)
     epsilons = args.epsilons if task in TABULAR_TASKS and args.epsilons else [None]
     # lava tasks: one comparison per layout seed (env kwargs hold for every run of a comparison)
@@ -115,7 +126,7 @@ def run_task(task: str, args: argparse.Namespace) -> list[dict[str, Any]]:
             result = run_preset(
                 preset,
                 folder,
-                methods=config_methods(args.algo if task in DEEP_TASKS else "imgep", pattern, tuple(args.variants)),
+                methods=post_exploration_methods(algo, args.variants),
                 envs=[env_id],
                 seeds=group_seeds,
                 n_timesteps=args.steps,
