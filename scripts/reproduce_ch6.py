@@ -2,7 +2,7 @@
 
 Every run is a comparison run of a section of ``zoo_configs/imgep.yml``, ``ddpg.yml`` or ``sac.yml`` (``off`` = no
 post-exploration, ``on`` = Table 6.2/6.3 post-exploration: the variants ``<env id>@off`` / ``@on``, and
-``@post_exploration_off`` / ``@post_exploration_on`` of ``sac.yml``; ``adaptive`` = our novelty-adaptive length, the
+``@post_exploration_on`` / ``@post_exploration_off`` of ``sac.yml``; ``adaptive`` = our novelty-adaptive length, the
 default section of ``imgep.yml`` and ``ddpg.yml``): tabular
 IMGEP (:class:`~sb3_gcrl.imgep.TabularIMGEP`, ``--algo imgep``) on FourRooms, LavaGap and LavaCrossing (presets
 ``ch6``, ``ch6-quick``), deep IMGEP (DDPG or SAC + HER with

@@ -125,8 +125,9 @@ def method_label(spec: str) -> str:
 def parse_method(spec: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Method:
     """Parse ``ALGO[@VARIANT][:CONFIG]`` or ``LABEL=ALGO[@VARIANT][:CONFIG]`` (see the module docstring).
 
-    A config name of an earlier release (``sac:reset_free_pointumaze_naive``) still works, with a DeprecationWarning
-    naming the new spelling (:data:`~sb3_gcrl.zoo_config.OLD_CONFIG_NAMES`); the method keeps its label.
+    A config name of an earlier release (one file per method, task and variant) still works, with a
+    DeprecationWarning naming the new spelling (:data:`~sb3_gcrl.zoo_config.OLD_CONFIG_NAMES`); the method keeps its
+    label.
 
     :param spec: the method as written on the command line.
     :param config_dir: folder where a bare config name is looked up.
