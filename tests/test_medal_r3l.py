@@ -182,6 +182,19 @@ def test_predict_is_the_forward_policy():
     assert not np.array_equal(forward, model.backward.policy.predict(obs, deterministic=True)[0])
 
 
+def test_medal_runs_the_same_under_the_same_seed():
+    """Same seed, same run: the discriminator's batches (demonstration and visited states) are drawn with the
+    algorithm's generator, seeded from the model's seed."""
+    runs = []
+    for seed in (0, 0, 1):
+        model = make_model(MEDAL, seed=seed, learning_starts=0, reward_model_train_freq=2)
+        model.learn(60, callback=ResetFreeCallback())
+        runs.append({k: v.clone() for k, v in model.discriminator.state_dict().items()})
+    first, again, other = runs
+    assert all(th.equal(first[key], again[key]) for key in first)
+    assert not all(th.equal(first[key], other[key]) for key in first)
+
+
 # ------------------------------------------------------------------------------------------------ save / load
 @pytest.mark.parametrize("cls", [MEDAL, R3L])
 def test_save_load_restores_both_policies_the_reward_model_and_both_buffers(
@@ -199,6 +212,7 @@ def test_save_load_restores_both_policies_the_reward_model_and_both_buffers(
         assert th.equal(value, loaded.reward_model.state_dict()[key]), key
     assert loaded.reward_model.optimizer.state_dict()["state"]  # the reward model's Adam moments came back
     assert list(loaded.phase_steps) == list(model.phase_steps)
+    assert loaded._rng.bit_generator.state == model._rng.bit_generator.state  # the reward-model draws continue
     loaded.load_replay_buffer(tmp_path / "buffers.pkl")
     for a, b in ((model.replay_buffer, loaded.replay_buffer), (model.backward_buffer, loaded.backward_buffer)):
         assert a.size() == b.size()

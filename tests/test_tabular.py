@@ -14,13 +14,14 @@ from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_gcrl  # noqa: F401  (registers GCRL/WindyGrid-v0)
 from sb3_gcrl.memory.episode import discounted_returns
+from sb3_gcrl.memory.mfec_memory import argmax_random_ties
 from sb3_gcrl.tabular import (
     TabularEpisodicControl,
     TabularQLearning,
     TabularTwoMemory,
     q_learning_update,
 )
-from sb3_gcrl.tabular.policies import TabularECPolicy, greedy_actions
+from sb3_gcrl.tabular.policies import TabularECPolicy
 from sb3_gcrl.two_memory import EPISODIC, PARAMETRIC, SourceTaggedReplayBuffer
 
 WINDY = "GCRL/WindyGrid-v0"
@@ -63,8 +64,8 @@ def test_discounted_returns():
 
 def test_greedy_tie_breaking():
     values = np.zeros((2000, 3))
-    assert (greedy_actions(values, False) == 0).all()
-    counts = np.bincount(greedy_actions(values, True), minlength=3)
+    assert (argmax_random_ties(values, None) == 0).all()  # deterministic: the first maximum
+    counts = np.bincount(argmax_random_ties(values, np.random.default_rng(0)), minlength=3)
     assert counts.min() > 500  # uniform over the tied actions
 
 
@@ -233,3 +234,43 @@ def test_tensorboard_run_is_named_after_the_class(cls, tmp_path):
     model = cls(env=windy(), tensorboard_log=str(tmp_path))
     model.learn(20)
     assert [p.name for p in tmp_path.iterdir()] == [f"{cls.__name__}_1"]
+
+
+# ------------------------------------------------------------------------------------------------ seeding
+def _two_memory_run(seed: int) -> tuple[np.ndarray, ...]:
+    """Memories drawn, Q-table and EC table of a short seeded TabularTwoMemory run on two WindyGrid envs."""
+    model = TabularTwoMemory(env=make_vec_env(windy, n_envs=2, seed=seed), p_ec_schedule=0.5, seed=seed, train_freq=1)
+    draws = []
+    assign = model.policy.assign_memories
+    model.policy.assign_memories = lambda p_ec, rng: (draws.append(assign(p_ec, rng).copy()), draws[-1])[1]
+    model.learn(1_500)
+    return np.concatenate(draws), model.q_table.copy(), model.ec_table.copy()
+
+
+def test_two_memory_runs_the_same_under_the_same_seed():
+    first, again, other = _two_memory_run(0), _two_memory_run(0), _two_memory_run(1)
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+    assert any(a.shape != b.shape or not np.array_equal(a, b) for a, b in zip(first, other))
+
+
+def _policy_generators(model) -> list[np.random.Generator]:
+    return [module.rng for module in model.policy.modules() if hasattr(module, "rng")]
+
+
+@pytest.mark.parametrize("cls", ALL_TABULAR)
+def test_save_load_continues_the_generators(cls, tmp_path):
+    """The exploration coins, the tie-breaking and (2M) the memory draws continue after load where they stopped."""
+    model = cls(env=windy(), seed=4)
+    model.learn(300)
+    model.save(tmp_path / "model.zip")
+    loaded = cls.load(tmp_path / "model.zip")
+    assert loaded._rng.bit_generator.state == model._rng.bit_generator.state
+    saved_policy, loaded_policy = _policy_generators(model), _policy_generators(loaded)
+    assert saved_policy and [g.bit_generator.state for g in saved_policy] == [
+        g.bit_generator.state for g in loaded_policy
+    ]
+    if cls is TabularTwoMemory:
+        assert loaded.dispatcher.rng.bit_generator.state == model.dispatcher.rng.bit_generator.state
+    states = np.arange(70)
+    np.testing.assert_array_equal(loaded.predict(states)[0], model.predict(states)[0])  # the same random tie-breaks

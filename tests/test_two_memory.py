@@ -487,8 +487,8 @@ def _record_draws(policy) -> list[np.ndarray]:
     draws = []
     assign = policy.assign_memories
 
-    def recording_assign(p_ec: float) -> np.ndarray:
-        memories = assign(p_ec)
+    def recording_assign(p_ec: float, rng: np.random.Generator) -> np.ndarray:
+        memories = assign(p_ec, rng)
         draws.append(memories.copy())
         return memories
 
@@ -505,6 +505,18 @@ def _policy_state(model) -> dict[str, np.ndarray]:
     return state
 
 
+class StockEpsilonCoin(BaseCallback):
+    """Draws stock DQN's epsilon coin from numpy's global generator at every step.
+
+    ``DQN.predict`` draws it there, as SB3's replay sampling draws its batches; a 2M algorithm draws its coins with
+    its own generator. With this callback both runs leave the same numbers to the replay sampling.
+    """
+
+    def _on_step(self) -> bool:
+        np.random.rand()
+        return True
+
+
 def test_the_algorithm_drives_the_dispatch_as_the_callback_does_for_stock_dqn():
     """``learn`` without any callback dispatches as stock DQN driven by TwoMemoryCallback: with one env, no epsilon
     and no warm-up (where stock DQN differs) both draw the same memories and end with the same parameters."""
@@ -515,7 +527,7 @@ def test_the_algorithm_drives_the_dispatch_as_the_callback_does_for_stock_dqn():
     settings = dict(learning_starts=0, exploration_initial_eps=0.0, exploration_final_eps=0.0, seed=3, gamma=0.9)
     makers = (
         lambda: (TwoMemoryDQN("MlpPolicy", make_vec_env(Corridor, n_envs=1, seed=0), p_ec_schedule=0.5,
-                              **{**TINY_DQN, **settings}), None),
+                              **{**TINY_DQN, **settings}), StockEpsilonCoin()),
         lambda: (DQN(TwoMemoryDQNPolicy, make_vec_env(Corridor, n_envs=1, seed=0), **{**STOCK_DQN, **settings}),
                  TwoMemoryCallback(p_ec_schedule=0.5)),
     )  # fmt: skip

@@ -22,17 +22,19 @@ from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.sac.policies import MultiInputPolicy, SACPolicy
 from torch import nn
 
+from sb3_gcrl.common.seeding import SeededGeneratorMixin
 from sb3_gcrl.reset_free_baselines.buffers import PhaseReplayBuffer, RelabeledRewards
 from sb3_gcrl.reset_free_baselines.forward_backward import ForwardBackwardSAC
 from sb3_gcrl.reset_free_baselines.reward_models import as_tensor
 
 
-class BackwardRewardSAC(ForwardBackwardSAC):
+class BackwardRewardSAC(SeededGeneratorMixin, ForwardBackwardSAC):
     """A :class:`~sb3_gcrl.reset_free_baselines.ForwardBackwardSAC` whose backward policy learns from a reward model.
 
     The forward policy learns from the env's reward for the commanded task goal; the backward policy from the reward
     model's value of the next state (:meth:`_backward_reward`). Subclasses give the reward model
-    (:meth:`_make_reward_model`, with a ``reward(states)`` method, and :meth:`_reward_model_step`).
+    (:meth:`_make_reward_model`, with a ``reward(states)`` method, and :meth:`_reward_model_step`). The states of a
+    reward-model batch are drawn with the algorithm's own generator (seeded from ``seed``, saved with the model).
 
     :param policy: SAC policy (``"MultiInputPolicy"``).
     :param env: goal env wrapped in ``ResetFreeWrapper`` and ``ForwardBackwardWrapper``.
@@ -174,7 +176,7 @@ class BackwardRewardSAC(ForwardBackwardSAC):
 
         :param n: number of states.
         """
-        states = self.backward_buffer.sample_visited_states(n, self.state_key)
+        states = self.backward_buffer.sample_visited_states(n, self.state_key, self._rng)
         return None if states is None else as_tensor(states, self.device)
 
     # --- saving ------------------------------------------------------------------------------------------------

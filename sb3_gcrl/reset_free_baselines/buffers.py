@@ -44,26 +44,28 @@ class PhaseReplayBuffer(DictReplayBuffer):
         upper = self.buffer_size if self.full else self.pos
         return int((~self.is_demo[:upper]).sum())
 
-    def sample_visited_states(self, n: int, key: str) -> np.ndarray | None:
+    def sample_visited_states(self, n: int, key: str, rng: np.random.Generator | None = None) -> np.ndarray | None:
         """Next states of ``n`` collected rows drawn uniformly (with replacement), or None when there is none.
 
         :param n: number of states.
         :param key: observation key of the state.
+        :param rng: generator of the draws (the algorithm's); None: a generator of fresh entropy.
         :return: ``(n, state_dim)`` float32 array, or None.
         """
+        rng = np.random.default_rng() if rng is None else rng
         upper = self.buffer_size if self.full else self.pos
         flags = self.is_demo[:upper]
         if flags.any():
             rows, envs = np.nonzero(~flags)
             if len(rows) == 0:
                 return None
-            pick = np.random.randint(0, len(rows), size=n)
+            pick = rng.integers(0, len(rows), size=n)
             rows, envs = rows[pick], envs[pick]
         else:
             if upper == 0:
                 return None
-            rows = np.random.randint(0, upper, size=n)
-            envs = np.random.randint(0, self.n_envs, size=n)
+            rows = rng.integers(0, upper, size=n)
+            envs = rng.integers(0, self.n_envs, size=n)
         return self.next_observations[key][rows, envs].reshape(n, -1).astype(np.float32)
 
 

@@ -113,7 +113,7 @@ class MEDAL(BackwardRewardSAC):
         negatives = self._visited_states(self.reward_model_batch_size - half)
         if negatives is None:
             return None
-        positives = self._demo_states[np.random.randint(0, len(self._demo_states), size=half)]
+        positives = self._demo_states[self._rng.integers(0, len(self._demo_states), size=half)]
         return self.reward_model.train_step(as_tensor(positives, self.device), negatives)
 
     def _excluded_save_params(self) -> list[str]:

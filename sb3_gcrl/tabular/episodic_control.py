@@ -9,10 +9,9 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 
 from sb3_gcrl.common.episodes import EpisodeRecorder
-from sb3_gcrl.common.validation import check_unit_interval
+from sb3_gcrl.common.validation import check_bool, check_unit_interval
 from sb3_gcrl.tabular.policies import TabularECPolicy
 from sb3_gcrl.tabular.tabular_algorithm import TabularAlgorithm
-from sb3_gcrl.two_memory.dispatch import check_bool
 
 
 class TabularEpisodicControl(TabularAlgorithm):

@@ -1,7 +1,8 @@
 """Policies of the tabular algorithms (thesis Sec. 5.5.1): Q-table, episodic-control table and their 2M hybrid.
 
 The tables are numpy arrays (so updates are cheap in-place numpy ops); ``get_extra_state`` puts them into the
-policy's ``state_dict`` as tensors, so SB3's ``save``/``load`` restores them exactly.
+policy's ``state_dict`` as tensors, together with the state of the generator that breaks ties, so SB3's
+``save``/``load`` restores them exactly and a loaded policy continues its draws.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 
+from sb3_gcrl.common.seeding import draw_seed, generator_state, restore_generator, seeded_generator
+from sb3_gcrl.memory.mfec_memory import argmax_random_ties
 from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatchMixin
 
 
@@ -30,19 +33,6 @@ def check_tabular_spaces(observation_space: spaces.Space, action_space: spaces.S
     if observation_space.start != 0 or action_space.start != 0:
         raise ValueError(f"{who} needs Discrete spaces that start at 0, got {observation_space}, {action_space}")
     return int(observation_space.n), int(action_space.n)
-
-
-def greedy_actions(values: np.ndarray, break_ties_randomly: bool) -> np.ndarray:
-    """Argmax over the last axis; with ``break_ties_randomly`` a uniformly random action among the maxima.
-
-    Random tie-breaking matters for tabular agents that start from equal values (an all-zero table would
-    otherwise always pick action 0 while exploring); deterministic prediction keeps the first maximum.
-    """
-    if not break_ties_randomly:
-        return values.argmax(axis=-1)
-    is_max = values == values.max(axis=-1, keepdims=True)
-    keys = np.random.random(values.shape) * is_max
-    return keys.argmax(axis=-1)
 
 
 def _states(observation: th.Tensor) -> np.ndarray:
@@ -62,6 +52,11 @@ class TabularBasePolicy(BasePolicy):
 class TabularTablePolicy(TabularBasePolicy):
     """Greedy policy of one ``(n_states, n_actions)`` table: a numpy array named :attr:`table_name`, saved in the
     ``state_dict`` under that name, whose start is set by one float constructor argument, :attr:`value_parameter`.
+
+    Ties are broken uniformly at random while exploring (``deterministic=False``), which matters for tables that
+    start from equal values (an all-zero table would otherwise always pick action 0), and by the first maximum for
+    deterministic predictions. The tie-breaking generator is seeded from the action space's generator (which SB3
+    seeds with the model's seed before it builds the policy), reseeded by :meth:`set_seed` and saved with the table.
 
     :param observation_space: Discrete state space.
     :param action_space: Discrete action space.
@@ -83,11 +78,20 @@ class TabularTablePolicy(TabularBasePolicy):
         n_states, n_actions = check_tabular_spaces(observation_space, action_space, type(self).__name__)
         setattr(self, self.value_parameter, float(value))
         setattr(self, self.table_name, np.full((n_states, n_actions), initial_entry, dtype=np.float64))
+        #: generator of the random tie-breaking
+        self.rng = np.random.default_rng(draw_seed(action_space))
 
     @property
     def table(self) -> np.ndarray:
         """The table (``q_table`` / ``ec_table``)."""
         return getattr(self, self.table_name)
+
+    def set_seed(self, seed: int | None) -> None:
+        """Reseed the tie-breaking generator (the algorithm's ``set_random_seed`` calls this).
+
+        :param seed: the seed; ``None``: fresh entropy.
+        """
+        self.rng = seeded_generator(seed, self.table_name)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -99,10 +103,11 @@ class TabularTablePolicy(TabularBasePolicy):
         return self.table[states]
 
     def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
-        return th.as_tensor(greedy_actions(self.q_values(_states(observation)), not deterministic))
+        values = self.q_values(_states(observation))
+        return th.as_tensor(argmax_random_ties(values, None if deterministic else self.rng))
 
     def get_extra_state(self) -> dict[str, th.Tensor]:
-        return {self.table_name: th.from_numpy(self.table.copy())}
+        return {self.table_name: th.from_numpy(self.table.copy()), "rng": generator_state(self.rng)}
 
     def set_extra_state(self, state: dict[str, th.Tensor]) -> None:
         table = state[self.table_name].numpy()
@@ -111,6 +116,8 @@ class TabularTablePolicy(TabularBasePolicy):
                 f"saved {self.table_label} has shape {table.shape}, this policy expects {self.table.shape}"
             )
         self.table[...] = table
+        if "rng" in state:  # (files saved before the generator was saved keep the one seeded at construction)
+            self.rng = restore_generator(state["rng"])
 
 
 class TabularQPolicy(TabularTablePolicy):
@@ -211,6 +218,14 @@ class TabularTwoMemoryPolicy(TwoMemoryDispatchMixin, TabularBasePolicy):
         self.unseen_value = self.ec_policy.unseen_value
         self.initial_q = self.q_policy.initial_value
         self._init_dispatch(score_window)
+
+    def set_seed(self, seed: int | None) -> None:
+        """Reseed the tie-breaking generators of both tables.
+
+        :param seed: the seed; ``None``: fresh entropy.
+        """
+        self.ec_policy.set_seed(seed)
+        self.q_policy.set_seed(seed)
 
     @property
     def q_table(self) -> np.ndarray:

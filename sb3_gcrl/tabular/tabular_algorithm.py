@@ -13,7 +13,8 @@ from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
-from sb3_gcrl.common.validation import check_unit_interval
+from sb3_gcrl.common.seeding import SeededGeneratorMixin
+from sb3_gcrl.common.validation import check_int, check_unit_interval
 from sb3_gcrl.tabular.policies import check_tabular_spaces
 
 SelfTabularAlgorithm = TypeVar("SelfTabularAlgorithm", bound="TabularAlgorithm")
@@ -28,8 +29,8 @@ def check_tabular_hyperparameters(
     buffer_size: int,
     learning_starts: int,
     batch_size: int,
-) -> None:
-    """Validate the hyper-parameters of a tabular agent; raise a ValueError that names the parameter.
+) -> tuple[int, int, int]:
+    """Validate the hyper-parameters of a tabular agent; raise an error that names the parameter.
 
     The learning rate is the step size of ``Q <- Q + lr * (target - Q)``: it must lie in (0, 1] (above 1 each
     update overshoots its target and the table diverges). A schedule is checked at the start and the end of
@@ -43,7 +44,10 @@ def check_tabular_hyperparameters(
     :param buffer_size: replay buffer size, >= 1.
     :param learning_starts: random steps before learning, >= 0.
     :param batch_size: transitions per update, >= 1.
+    :return: ``buffer_size``, ``learning_starts`` and ``batch_size`` as ints (integral floats such as YAML's
+        ``!!float 5e4`` accepted).
     :raises ValueError: for the first parameter out of range.
+    :raises TypeError: for an integer parameter that is not a number.
     """
     if callable(learning_rate):
         for progress_remaining in (1.0, 0.0):
@@ -58,14 +62,18 @@ def check_tabular_hyperparameters(
     check_unit_interval("exploration_fraction", exploration_fraction)
     check_unit_interval("exploration_initial_eps", exploration_initial_eps)
     check_unit_interval("exploration_final_eps", exploration_final_eps)
-    for name, value, low in (("buffer_size", buffer_size, 1), ("learning_starts", learning_starts, 0),
-                             ("batch_size", batch_size, 1)):  # fmt: skip
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    return (
+        check_int("buffer_size", buffer_size),
+        check_int("learning_starts", learning_starts, minimum=0),
+        check_int("batch_size", batch_size),
+    )
 
 
-class TabularAlgorithm(ModelFileMixin, ClassNamedRunsMixin, OffPolicyAlgorithm):
+class TabularAlgorithm(SeededGeneratorMixin, ModelFileMixin, ClassNamedRunsMixin, OffPolicyAlgorithm):
     """Off-policy tabular agent with epsilon-greedy exploration drawn per env (SB3's DQN draws one coin per batch).
+
+    The exploration draws come from the algorithm's own generator, the tie-breaking of the greedy actions from the
+    policy's (both seeded from ``seed``, saved with the model and continued by ``load``).
 
     Defaults follow the authors' tabular 2M code (public repo yangzhao-666/2m): replay buffer 5e4, batch 32 every
     8 steps, learning rate 0.01, epsilon 0.1 -> 0.05. Tables live on the CPU whatever ``device`` says.
@@ -119,7 +127,7 @@ class TabularAlgorithm(ModelFileMixin, ClassNamedRunsMixin, OffPolicyAlgorithm):
         device: str = "cpu",
         _init_setup_model: bool = True,
     ) -> None:
-        check_tabular_hyperparameters(
+        buffer_size, learning_starts, batch_size = check_tabular_hyperparameters(
             learning_rate,
             gamma,
             exploration_fraction,
@@ -173,13 +181,14 @@ class TabularAlgorithm(ModelFileMixin, ClassNamedRunsMixin, OffPolicyAlgorithm):
     def _sample_action(
         self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
+        n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
         if self.num_timesteps < learning_starts:
-            actions = np.random.randint(self.action_space.n, size=n_envs)
+            actions = self._rng.integers(n_actions, size=n_envs)
         else:
             actions, _ = self.policy.predict(self._last_obs, deterministic=False)
             actions = np.asarray(actions).reshape(n_envs).copy()
-            explore = np.random.random(n_envs) < self.exploration_rate
-            actions[explore] = np.random.randint(self.action_space.n, size=int(explore.sum()))
+            explore = self._rng.random(n_envs) < self.exploration_rate
+            actions[explore] = self._rng.integers(n_actions, size=int(explore.sum()))
         return actions, actions
 
     def _excluded_save_params(self) -> list[str]:

@@ -10,6 +10,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
 
+from sb3_gcrl.common.seeding import draw_seed
 from sb3_gcrl.two_memory.schedules import EPISODIC, PARAMETRIC
 
 
@@ -22,6 +23,10 @@ class SourceTaggedReplayBuffer(ReplayBuffer):
     The tags also give the fraction of EC data in the buffer, which the thesis discusses in Sec. 5.5.3.
 
     Before :meth:`add`, the algorithm sets :attr:`next_sources` (one tag per env).
+
+    A filtering buffer samples with its own generator, seeded from the action space's generator (which SB3 seeds with
+    the model's seed before it builds the buffer) and saved with the buffer; without filtering, :meth:`sample` is
+    SB3's own.
 
     :param sampled_sources: sources that :meth:`sample` draws from.
     """
@@ -55,6 +60,8 @@ class SourceTaggedReplayBuffer(ReplayBuffer):
         self.sources = np.full((self.buffer_size, self.n_envs), PARAMETRIC, dtype=np.int8)
         #: source of the transitions passed to the next :meth:`add`, one per env
         self.next_sources = np.full(self.n_envs, PARAMETRIC, dtype=np.int8)
+        #: generator of the filtered sampling (None without filtering)
+        self.rng = np.random.default_rng(draw_seed(action_space)) if self.filters_sources else None
 
     @property
     def filters_sources(self) -> bool:
@@ -88,7 +95,8 @@ class SourceTaggedReplayBuffer(ReplayBuffer):
                 f"No transition from sources {self.sampled_sources} in the replay buffer yet; "
                 "check n_sampleable() > 0 before sampling"
             )
-        chosen = flat[np.random.randint(0, flat.size, size=batch_size)]
+        assert self.rng is not None
+        chosen = flat[self.rng.integers(0, flat.size, size=batch_size)]
         batch_inds, env_indices = np.divmod(chosen, self.n_envs)
         data = (
             self._normalize_obs(self.observations[batch_inds, env_indices, :], env),

@@ -38,6 +38,9 @@ class TwoMemoryCallback(BaseCallback):
     :param ec_gamma: discount of the returns stored in the episodic memory (``None``: the algorithm's ``gamma``).
     :param ec_update_truncated: also write time-limit-truncated episodes into the episodic memory.
     :param verbose: verbosity.
+
+    The memories are drawn with the dispatcher's generator, seeded from the model's seed when training first starts
+    (as a 2M algorithm seeds its own: the same seed draws the same memories).
     :raises ValueError: for a bad schedule or setting (at construction), or, when training starts, for a 2M algorithm
         or a policy that is not a 2M policy.
     """
@@ -77,6 +80,8 @@ class TwoMemoryCallback(BaseCallback):
                 f"sb3_gcrl.two_memory.policies.TwoMemoryMinAtarPolicy), got {type(self.model.policy).__name__}"
             )
         self.dispatcher.use_gamma_by_default(self.model.gamma)
+        if self.dispatcher.rng is None:  # (once: successive learn calls continue the draws)
+            self.dispatcher.seed(self.model.seed)
 
     def _on_training_start(self) -> None:
         envs_reset = self.model._last_obs is not self._obs_at_training_end

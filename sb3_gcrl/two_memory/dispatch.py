@@ -38,7 +38,8 @@ from stable_baselines3.common.policies import BasePolicy
 from sb3_gcrl.common.episodes import EpisodeRecorder, truncated_ends
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
-from sb3_gcrl.common.validation import check_unit_interval
+from sb3_gcrl.common.seeding import SeededGeneratorMixin, seeded_generator
+from sb3_gcrl.common.validation import check_bool, check_unit_interval
 from sb3_gcrl.two_memory.buffers import SourceTaggedReplayBuffer
 from sb3_gcrl.two_memory.schedules import (
     DEFAULT_P_EC_SCHEDULE,
@@ -55,24 +56,11 @@ __all__ = [
     "TwoMemoryAlgorithmMixin",
     "TwoMemoryDispatchMixin",
     "TwoMemoryDispatcher",
-    "check_bool",
     "truncated_ends",
 ]
 
 #: what ``p_ec_schedule`` accepts (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`)
 PecSpec = PecSchedule | float | str | dict[str, Any]
-
-
-def check_bool(name: str, value: Any) -> bool:
-    """Return ``value`` as a ``bool`` after checking that it is one (``"false"`` from a command line would be true).
-
-    :param name: parameter name used in the error message.
-    :param value: the value to check.
-    :raises ValueError: naming ``name``, for anything but ``True`` / ``False``.
-    """
-    if not isinstance(value, (bool, np.bool_)):
-        raise ValueError(f"{name} must be True or False, got {value!r}")
-    return bool(value)
 
 
 def _batch_size(observation: th.Tensor | dict[str, th.Tensor]) -> int:
@@ -140,8 +128,8 @@ class TwoMemoryDispatchMixin:
         return data
 
     def set_seed(self, seed: int | None) -> None:
-        """Reseed the policy's own random generators (EC tie-breaking / sampling); numpy's global generator, which
-        draws the acting memories, is seeded by the algorithm. Policies with their own generators override this.
+        """Reseed the policy's own random generators (EC tie-breaking / sampling); the acting memories are drawn by
+        the :class:`TwoMemoryDispatcher`'s generator. Policies with their own generators override this.
 
         :param seed: seed.
         """
@@ -158,15 +146,16 @@ class TwoMemoryDispatchMixin:
         """Whether some env starts an episode and has no acting memory yet."""
         return bool(np.any(self.acting_memory == UNASSIGNED))
 
-    def assign_memories(self, p_ec: float) -> np.ndarray:
+    def assign_memories(self, p_ec: float, rng: np.random.Generator) -> np.ndarray:
         """Draw a memory for every env that starts an episode (Algorithm 2: ``U(0,1) < p_ec`` -> EC).
 
         :param p_ec: probability that an episode is run by the episodic memory (from the p_ec schedule).
+        :param rng: the generator of the draws (the dispatcher's).
         :return: the acting memory of each env.
         """
         unassigned = np.flatnonzero(self.acting_memory == UNASSIGNED)
         if unassigned.size > 0:
-            draws = np.random.random(unassigned.size) < p_ec
+            draws = rng.random(unassigned.size) < p_ec
             self.acting_memory[unassigned] = np.where(draws, EPISODIC, PARAMETRIC)
         return self.acting_memory
 
@@ -276,8 +265,11 @@ class TwoMemoryDispatcher:
     p_ec read from the schedule then, never switched mid-episode); every finished episode is scored (Eq. 5.6
     windows) and, by the settings below, written into the episodic memory (Eq. 5.2).
 
-    Saved with the algorithm (the schedule, its state and the p_ec of the last draw; running episodes are not: the
-    envs are reset when training resumes after ``load``).
+    The memories are drawn with the dispatcher's own generator, :attr:`rng`, which its host seeds from the model's
+    seed (:meth:`seed`; fresh entropy if it is not seeded before training starts).
+
+    Saved with the algorithm (the schedule, its state, the p_ec of the last draw and the generator; running episodes
+    are not: the envs are reset when training resumes after ``load``).
 
     :param p_ec_schedule: the p_ec schedule or its spec (see :func:`~sb3_gcrl.two_memory.schedules.make_pec_schedule`).
     :param data_sharing: update the episodic memory with every episode (thesis Sec. 5.4.3) instead of only with the
@@ -308,6 +300,15 @@ class TwoMemoryDispatcher:
         self.p_ec = self._schedule_value(0, ScoreWindows())
         #: running episodes of the training envs
         self.episodes = EpisodeRecorder()
+        #: generator of the memory draws (None until :meth:`seed` or the start of training)
+        self.rng: np.random.Generator | None = None
+
+    def seed(self, seed: int | None) -> None:
+        """(Re)seed the generator of the memory draws.
+
+        :param seed: the model's seed; ``None``: fresh entropy.
+        """
+        self.rng = seeded_generator(seed, "two_memory dispatch")
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
@@ -344,6 +345,8 @@ class TwoMemoryDispatcher:
         if envs_reset or policy.acting_memory.size != n_envs:
             policy.reset_acting_memory(n_envs)
             self.episodes.reset()
+        if self.rng is None:
+            self.seed(None)
         self.draw(policy, num_timesteps)
 
     def draw(self, policy: TwoMemoryDispatchMixin, num_timesteps: int) -> None:
@@ -353,8 +356,10 @@ class TwoMemoryDispatcher:
         :param num_timesteps: env steps so far.
         """
         if policy.needs_memories():
+            if self.rng is None:
+                raise RuntimeError("draw called before start: the dispatcher has no generator yet")
             self.p_ec = self._schedule_value(num_timesteps, policy.score_windows)
-            policy.assign_memories(self.p_ec)
+            policy.assign_memories(self.p_ec, self.rng)
 
     def step(
         self,
@@ -421,7 +426,7 @@ class TwoMemoryDispatcher:
             logger.record("two_memory/buffer_ec_fraction", replay_buffer.source_fraction(EPISODIC))
 
 
-class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
+class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRunsMixin):
     """Algorithm side of 2M for an SB3 ``OffPolicyAlgorithm`` whose policy is a :class:`TwoMemoryDispatchMixin`.
 
     Mix in first (``class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN)``). It
@@ -434,7 +439,8 @@ class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
       every episode (``p_ec`` is the last draw's), from ``_setup_learn`` and ``_store_transition``, so ``learn``
       needs no callback;
     - acts through the policy's per-env dispatch, with epsilon-greedy applied per env on both memories for
-      Discrete actions (stock DQN draws one epsilon coin for the whole batch of envs);
+      Discrete actions (stock DQN draws one epsilon coin for the whole batch of envs), its coins drawn with the
+      algorithm's own generator (:class:`~sb3_gcrl.common.seeding.SeededGeneratorMixin`);
     - keeps SB3's random warm-up (``learning_starts``) for RL-run episodes only: EC-run episodes act with the
       episodic memory from the first step, since EC has nothing to wait for;
     - tags every stored transition with the memory that collected it and, without data sharing, trains the RL
@@ -534,7 +540,20 @@ class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
             )
         self.replay_buffer_kwargs = dict(self.replay_buffer_kwargs)
         self._two_memory_replay_kwargs(self.dispatcher.data_sharing)
+        restored = self.dispatcher.rng  # only ``load`` brings a dispatcher with a generator: continue it
         super()._setup_model()  # type: ignore[misc]
+        if restored is not None:
+            self.dispatcher.rng = restored
+
+    def _seed_generators(self, seed: int | None) -> None:
+        """The algorithm's generator (exploration coins) and the dispatcher's (memory draws).
+
+        :param seed: the seed; ``None``: fresh entropy.
+        """
+        super()._seed_generators(seed)
+        dispatcher = getattr(self, "dispatcher", None)
+        if dispatcher is not None:
+            dispatcher.seed(seed)
 
     def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
         previous_obs = self._last_obs  # type: ignore[has-type]
@@ -564,7 +583,7 @@ class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
         if self.num_timesteps < learning_starts:
             random_rows |= policy.acting_memory == PARAMETRIC
         if isinstance(self.action_space, spaces.Discrete):
-            random_rows |= np.random.random(n_envs) < getattr(self, "exploration_rate", 0.0)
+            random_rows |= self._rng.random(n_envs) < getattr(self, "exploration_rate", 0.0)
         if random_rows.any():
             unscaled_action = unscaled_action.copy()
             for row in np.flatnonzero(random_rows):
@@ -633,16 +652,6 @@ class TwoMemoryAlgorithmMixin(ModelFileMixin, ClassNamedRunsMixin):
                 f"use {other} for this env"
             )
         return env
-
-    def set_random_seed(self, seed: int | None = None) -> None:
-        """SB3's seeding (python, numpy, torch, action space, env) plus the policy's own generators.
-
-        :param seed: seed; ``None`` does nothing, as in SB3.
-        """
-        super().set_random_seed(seed)  # type: ignore[misc]
-        policy = getattr(self, "policy", None)
-        if seed is not None and policy is not None:
-            policy.set_seed(seed)
 
     def _two_memory_replay_kwargs(self, data_sharing: bool) -> None:
         """Use a :class:`SourceTaggedReplayBuffer` (unless the user gave a buffer class) that, without data sharing,

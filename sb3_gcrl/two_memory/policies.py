@@ -22,6 +22,7 @@ from torch import nn
 
 from sb3_gcrl.common.actors import cec_actions, mfec_actions
 from sb3_gcrl.common.episodic_control import load_memory_state, memory_state
+from sb3_gcrl.common.seeding import draw_seed, generator_state, restore_generator, seeded_generator
 from sb3_gcrl.common.validation import check_float
 from sb3_gcrl.memory import CECMemory, KeyEmbedding, MFECMemory
 from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatchMixin
@@ -71,8 +72,8 @@ class MinAtarDQNPolicy(DQNPolicy):
 
 class KeyedMemoryDispatchMixin(TwoMemoryDispatchMixin):
     """2M dispatch whose episodic half is a kNN memory (MFEC or CEC) keyed by a :class:`~sb3_gcrl.memory.KeyEmbedding`:
-    the memory (``self.memory``), its embedding, its generator (``self.rng``) and their save/restore, shared by the
-    DQN and SAC flavours."""
+    the memory (``self.memory``), its embedding, its generator (``self.rng``) and their save/restore (the generator's
+    state too, so a loaded policy continues its draws), shared by the DQN and SAC flavours."""
 
     memory: Any
     embedding: KeyEmbedding
@@ -81,13 +82,13 @@ class KeyedMemoryDispatchMixin(TwoMemoryDispatchMixin):
         """Build the embedding and the generator; keep the settings as attributes.
 
         :param ec_projection_dim: random-projection dimension of the keys (None: no projection).
-        :param ec_seed: seed of the projection and of the EC generator (None: drawn from numpy's global generator,
-            which SB3 seeds).
+        :param ec_seed: seed of the projection and of the EC generator (None: drawn from the action space's
+            generator, which SB3 seeds with the model's seed before it builds the policy).
         :param knn_backend: kNN backend of the memory.
         :return: the seed used.
         """
         if ec_seed is None:
-            ec_seed = int(np.random.randint(2**31 - 1))
+            ec_seed = draw_seed(self.action_space)  # type: ignore[attr-defined]
         self.ec_projection_dim = ec_projection_dim
         self.ec_seed = ec_seed
         self.knn_backend = knn_backend
@@ -100,7 +101,7 @@ class KeyedMemoryDispatchMixin(TwoMemoryDispatchMixin):
 
         :param seed: seed.
         """
-        self.rng = np.random.default_rng(seed)
+        self.rng = seeded_generator(seed, "episodic memory")
 
     def _keys(self, observation: th.Tensor | dict[str, th.Tensor]) -> np.ndarray:
         if isinstance(observation, dict):
@@ -111,10 +112,14 @@ class KeyedMemoryDispatchMixin(TwoMemoryDispatchMixin):
         return self.embedding(observations)
 
     def _episodic_state(self) -> dict[str, th.Tensor]:
-        return memory_state(self.memory, self.embedding)
+        return {**memory_state(self.memory, self.embedding), "ec_rng": generator_state(self.rng)}
 
     def _load_episodic_state(self, state: dict[str, th.Tensor]) -> None:
+        state = dict(state)
+        saved_rng = state.pop("ec_rng", None)  # (files saved before it was saved keep the generator of ec_seed)
         load_memory_state(self, self.memory, self.embedding, state)
+        if saved_rng is not None:
+            self.rng = restore_generator(saved_rng)
 
 
 class TwoMemoryDQNPolicy(KeyedMemoryDispatchMixin, DQNPolicy):
@@ -131,7 +136,8 @@ class TwoMemoryDQNPolicy(KeyedMemoryDispatchMixin, DQNPolicy):
     :param ec_projection_dim: random-projection dimension of the MFEC keys (None: no projection).
     :param ec_capacity_per_action: rows per action table (None: authors' ``1e5 / (2 * n_actions)``).
     :param ec_n_neighbors: k of the MFEC estimate (Table 5.1: 3).
-    :param ec_seed: seed of the projection matrix (None: drawn from numpy's global generator, which SB3 seeds).
+    :param ec_seed: seed of the projection matrix and of the MFEC generator (None: drawn from the action space's
+        generator, which SB3 seeds with the model's seed before it builds the policy).
     :param knn_backend: kNN backend of the MFEC tables (see :class:`~sb3_gcrl.memory.KNNIndex`).
     :param kwargs: :class:`~stable_baselines3.dqn.policies.DQNPolicy` arguments (net_arch, features extractor...).
     """
