@@ -675,3 +675,71 @@ def test_episode_recorder_hands_over_finished_episodes():
     )
     assert second.episode_return == 9.0
     np.testing.assert_array_equal(second.actions, [0, 1, 1])
+
+
+# ------------------------------------------------------------------------------------------------ old model files
+def _rewrite_as_saved_before_the_dispatcher(path, ec_settings: tuple[str, ...]) -> None:
+    """Rewrite a 2M model file in the layout written before the dispatcher owned the training settings: these were
+    attributes of the algorithm and ``policy_kwargs`` entries, with the ``p_ec_schedule`` spec, the ``p_ec`` of the
+    last draw and the names of the EC settings (``ec_settings``, each also an attribute); no generator was saved."""
+    import io
+    import zipfile
+
+    from stable_baselines3.common.save_util import data_to_json, json_to_data
+
+    with zipfile.ZipFile(path) as archive:
+        entries = {name: archive.read(name) for name in archive.namelist()}
+    data = json_to_data(entries["data"].decode())
+    dispatcher = data.pop("dispatcher")
+    del data["_rng"]
+    settings = {name: getattr(dispatcher, name) for name in dispatcher.settings}
+    schedule = dispatcher.p_ec_schedule
+    data["p_ec_schedule"] = {"type": "decayed", "start": schedule.start, "end": schedule.end, "decay": schedule.decay}
+    data["p_ec"] = dispatcher.p_ec
+    data["policy_kwargs"] = {**data["policy_kwargs"], **settings}
+    data.update(settings, score_window=data["policy_kwargs"]["score_window"], ec_settings=ec_settings)
+    data.update({name: data["policy_kwargs"][name] for name in ec_settings if name in data["policy_kwargs"]})
+    entries["data"] = data_to_json(data).encode()
+    state = th.load(io.BytesIO(entries["policy.pth"]), weights_only=False)
+    for key in [key for key in state if key.endswith("_extra_state")]:
+        state[key] = {name: value for name, value in state[key].items() if name not in ("ec_rng", "rng")}
+    buffer = io.BytesIO()
+    th.save(state, buffer)
+    entries["policy.pth"] = buffer.getvalue()
+    with zipfile.ZipFile(path, "w") as archive:
+        for name, content in entries.items():
+            archive.writestr(name, content)
+
+
+@pytest.mark.parametrize("algorithm", ["dqn", "tabular"])
+def test_model_files_saved_before_the_dispatcher_owned_the_settings_still_load(algorithm, tmp_path):
+    from sb3_gcrl.tabular import TabularTwoMemory
+
+    schedule = {"type": "decayed", "start": 0.7, "end": 0.2, "decay": 300}
+    settings = dict(p_ec_schedule=schedule, data_sharing=False, ec_gamma=0.8, ec_update_truncated=False, seed=1)
+    if algorithm == "dqn":
+        cls, model = TwoMemoryDQN, TwoMemoryDQN("MlpPolicy", Corridor(), **settings, **TINY_DQN)
+        ec_settings = ("ec_projection_dim", "ec_capacity_per_action", "ec_n_neighbors", "knn_backend")
+        observations = np.eye(6, dtype=np.float32)
+    else:
+        cls, model = TabularTwoMemory, TabularTwoMemory(env=gym.make("GCRL/WindyGrid-v0"), **settings)
+        ec_settings, observations = ("unseen_value", "initial_q"), np.arange(70)
+    model.learn(300)
+    model.save(tmp_path / "old.zip")
+    _rewrite_as_saved_before_the_dispatcher(tmp_path / "old.zip", ec_settings)
+    with pytest.warns(DeprecationWarning, match="saved before the 2M training settings moved"):
+        loaded = cls.load(tmp_path / "old.zip", env=model.get_env())
+    dispatcher = loaded.dispatcher
+    assert (dispatcher.data_sharing, dispatcher.ec_gamma, dispatcher.ec_update_truncated) == (False, 0.8, False)
+    assert (dispatcher.p_ec_schedule.start, dispatcher.p_ec_schedule.decay) == (0.7, 300)
+    assert loaded.p_ec == model.p_ec
+    assert not set(dispatcher.settings) & set(loaded.policy_kwargs)
+    assert not {"data_sharing", "ec_gamma", "ec_update_truncated", "ec_settings", *ec_settings} & set(vars(loaded))
+    np.testing.assert_array_equal(
+        loaded.predict(observations, deterministic=True)[0], model.predict(observations, deterministic=True)[0]
+    )
+    loaded.learn(100, reset_num_timesteps=False)  # training continues with the migrated settings
+    loaded.save(tmp_path / "new.zip")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        assert cls.load(tmp_path / "new.zip").dispatcher.ec_gamma == 0.8  # saved again: the current layout
