@@ -10,8 +10,11 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_gcrl.cec.policies import CECPolicy
+from sb3_gcrl.common.arguments import constructor_defaults
 from sb3_gcrl.common.episodic_control import EpisodicControlAlgorithm
-from sb3_gcrl.common.validation import check_float, check_int
+
+#: the memory settings' defaults, stated by the policy
+_MEMORY = constructor_defaults(CECPolicy)
 
 
 class CEC(EpisodicControlAlgorithm):
@@ -62,24 +65,19 @@ class CEC(EpisodicControlAlgorithm):
         self,
         policy: str | type[CECPolicy],
         env: GymEnv | str,
-        capacity: int = 1_000_000,
-        distance_threshold: float = 0.1,
-        filter_factor: float = 1.0,
-        n_neighbors: int = 5,
-        temperature: float = 0.1,
-        noise_std: float = 0.3,
+        capacity: int = _MEMORY["capacity"],
+        distance_threshold: float = _MEMORY["distance_threshold"],
+        filter_factor: float = _MEMORY["filter_factor"],
+        n_neighbors: int = _MEMORY["n_neighbors"],
+        temperature: float = _MEMORY["temperature"],
+        noise_std: float = _MEMORY["noise_std"],
         exploration_initial_eps: float = 0.9,
         exploration_final_eps: float = 0.05,
         exploration_fraction: float = 0.5,
         projection_dim: int | None = None,
         **kwargs: Any,
     ) -> None:
-        self.capacity = check_int("capacity", capacity)
-        self.distance_threshold = check_float("distance_threshold (d)", distance_threshold, 0.0, exclusive_minimum=True)
-        self.filter_factor = check_float("filter_factor (n)", filter_factor, 0.0, exclusive_minimum=True)
-        self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
-        self.temperature = check_float("temperature (tau)", temperature, 0.0, exclusive_minimum=True)
-        self.noise_std = check_float("noise_std (sigma)", noise_std, 0.0)
+        self._keep_memory_settings(locals())
         super().__init__(
             policy, env, exploration_initial_eps, exploration_final_eps, exploration_fraction, projection_dim, **kwargs
         )
@@ -94,16 +92,6 @@ class CEC(EpisodicControlAlgorithm):
                 "CEC needs a bounded Box action space (random actions are drawn uniformly from it); "
                 "rescale the env's actions, e.g. with gymnasium.wrappers.RescaleAction"
             )
-
-    def _policy_memory_kwargs(self) -> dict[str, Any]:
-        return dict(
-            capacity=self.capacity,
-            distance_threshold=self.distance_threshold,
-            filter_factor=self.filter_factor,
-            n_neighbors=self.n_neighbors,
-            temperature=self.temperature,
-            noise_std=self.noise_std,
-        )
 
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
         return self.policy.memory.update_episode(keys, actions.reshape(len(actions), -1), returns)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces
@@ -32,6 +32,10 @@ class CECPolicy(EpisodicControlPolicy):
     :param n_neighbors: ``k`` (Table 4.4).
     :param temperature: ``tau`` (Table 4.4, Eq. 4.5).
     :param noise_std: ``sigma`` (Table 4.4), in action units.
+
+    The defaults of the memory settings are those of :class:`~sb3_gcrl.cec.CEC` (the PointUMaze row of Table 4.4),
+    which reads them here.
+
     :param kwargs: the :class:`~sb3_gcrl.common.EpisodicControlPolicy` arguments (``projection_dim``,
         ``observation_keys``, ``seed``, ``knn_backend``, ``rebuild_threshold``).
     :raises TypeError: naming ``CEC.load`` when SB3's own ``load`` (``SAC.load``) builds this policy from a CEC
@@ -39,6 +43,14 @@ class CECPolicy(EpisodicControlPolicy):
     """
 
     action_space: spaces.Box
+    memory_parameters: ClassVar[tuple[str, ...]] = (
+        "capacity",
+        "distance_threshold",
+        "filter_factor",
+        "n_neighbors",
+        "temperature",
+        "noise_std",
+    )
 
     def __init__(
         self,
@@ -76,19 +88,6 @@ class CECPolicy(EpisodicControlPolicy):
             self.memory, keys, self._low, self._high, self.rng, deterministic, self.exploration_rate, self.noise_std
         )
         return actions.reshape(len(keys), *self.action_space.shape), found
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        memory = self.memory
-        data.update(
-            capacity=memory.capacity,
-            distance_threshold=memory.distance_threshold,
-            filter_factor=memory.filter_factor,
-            n_neighbors=memory.n_neighbors,
-            temperature=memory.temperature,
-            noise_std=self.noise_std,
-        )
-        return data
 
 
 MlpPolicy = CECPolicy

@@ -10,6 +10,10 @@ and the 2M agents, model files, argument checks and exploration metrics.
   the atomic writes (:func:`atomic_file`).
 
 * :mod:`sb3_gcrl.common.validation` — the package's argument checks (``check_int``, ``check_float``, ...).
+* :mod:`sb3_gcrl.common.seeding` — the package's own random draws: generators seeded from SB3's seed
+  (:class:`~sb3_gcrl.common.seeding.SeededGeneratorMixin`), never numpy's global one.
+* :mod:`sb3_gcrl.common.arguments` — settings an algorithm hands to its policy, their defaults stated once.
+* :mod:`sb3_gcrl.common.episodes` — the running episodes of each env, handed over when they end.
 * :mod:`sb3_gcrl.common.metrics` — exploration metrics of Ch. 6 (:func:`visitation_entropy`, :func:`coverage`).
 
 The memories themselves (data structures) are in :mod:`sb3_gcrl.memory`. The names above are imported on first

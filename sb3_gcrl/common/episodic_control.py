@@ -18,7 +18,7 @@ import time
 import warnings
 from abc import abstractmethod
 from collections.abc import Sequence
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
@@ -30,6 +30,7 @@ from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import LinearSchedule, safe_mean
 
+from sb3_gcrl.common.arguments import settings_among
 from sb3_gcrl.common.episodes import EpisodeRecorder
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.validation import check_choice, check_finite_rewards, check_float, check_int, check_optional_int
@@ -91,8 +92,9 @@ class MemoryRestoreError(RuntimeError):
 class EpisodicControlPolicy(BasePolicy):
     """Base policy holding an episodic memory and the observation -> key embedding.
 
-    Subclasses create ``self.memory`` (with ``state_dict``/``load_state_dict``/``__len__``) and
-    implement :meth:`act`.
+    Subclasses create ``self.memory`` (with ``state_dict``/``load_state_dict``/``__len__``), implement :meth:`act`
+    and list the constructor arguments of their memory settings in :attr:`memory_parameters` (saved by
+    ``policy.save``, handed on by :class:`EpisodicControlAlgorithm`).
 
     :param observation_space: observation space (Box, Discrete, MultiBinary or Dict of those).
     :param action_space: action space.
@@ -103,6 +105,10 @@ class EpisodicControlPolicy(BasePolicy):
     :param knn_backend: kNN backend of the memory (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
     :param rebuild_threshold: KD-tree rebuild threshold of the memory (``None``: automatic).
     """
+
+    #: constructor arguments of the memory settings, each an attribute of the same name of the memory (or of the
+    #: policy, for the policy's own settings such as CEC's exploration noise)
+    memory_parameters: ClassVar[tuple[str, ...]] = ()
 
     def __init__(
         self,
@@ -124,6 +130,12 @@ class EpisodicControlPolicy(BasePolicy):
         self.rng = np.random.default_rng(seed)
         #: probability of exploring (epsilon), set by the algorithm's schedule during training
         self.exploration_rate = 0.0
+
+    def memory_settings(self) -> dict[str, Any]:
+        """The memory settings as the policy uses them (checked and converted), by constructor argument name."""
+        return {
+            name: getattr(self.memory if hasattr(self.memory, name) else self, name) for name in self.memory_parameters
+        }
 
     def set_seed(self, seed: int | None) -> None:
         """Reseed the action-sampling generator (the projection matrix stays as it is)."""
@@ -199,6 +211,7 @@ class EpisodicControlPolicy(BasePolicy):
             seed=self.seed,
             knn_backend=self.knn_backend,
             rebuild_threshold=self.rebuild_threshold,
+            **self.memory_settings(),
         )
         return data
 
@@ -206,9 +219,12 @@ class EpisodicControlPolicy(BasePolicy):
 class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
     """Learn loop of episodic control: act with the memory, update it after every finished episode.
 
-    Subclasses set ``policy_aliases`` and implement :meth:`_policy_memory_kwargs`,
-    :meth:`_check_spaces` and :meth:`_update_memory`. The first parameters after ``env`` are the ones whose
-    defaults differ between the algorithms (each states its own, the authors' values, and passes them on in order).
+    Subclasses set ``policy_aliases`` and implement :meth:`_check_spaces` and :meth:`_update_memory`. The first
+    parameters after ``env`` are the ones whose defaults differ between the algorithms (each states its own, the
+    authors' values, and passes them on in order). The memory settings are the policy's (its
+    :attr:`~EpisodicControlPolicy.memory_parameters`, with their defaults): a subclass takes them under the same names,
+    reads their defaults from the policy and keeps them with :meth:`_keep_memory_settings`; the policy checks them,
+    and they stay attributes of the same name, as the policy converted them.
 
     :param policy: policy class or alias.
     :param env: env, VecEnv or registered env id; any number of envs.
@@ -295,14 +311,19 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
         if _init_setup_model:
             self._setup_model()
 
+    def _keep_memory_settings(self, arguments: dict[str, Any]) -> None:
+        """Keep the memory settings among a subclass constructor's arguments as attributes, for the policy that
+        ``_setup_model`` builds (and that checks them). Call it before this class's constructor.
+
+        :param arguments: the subclass constructor's ``locals()``.
+        """
+        policy_class = next(iter(self.policy_aliases.values()))
+        vars(self).update(settings_among(arguments, policy_class.memory_parameters))  # type: ignore[attr-defined]
+
     # ------------------------------------------------------------------ to implement
     @abstractmethod
     def _check_spaces(self, observation_space: spaces.Space, action_space: spaces.Space) -> None:
         """Raise a ``ValueError`` naming the fix when the spaces are not supported."""
-
-    @abstractmethod
-    def _policy_memory_kwargs(self) -> dict[str, Any]:
-        """Memory hyperparameters passed to the policy constructor (besides the kNN backend)."""
 
     @abstractmethod
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
@@ -359,10 +380,12 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
             seed=self.seed,
             knn_backend=self.knn_backend,
             rebuild_threshold=self.rebuild_threshold,
-            **self._policy_memory_kwargs(),
+            **{name: getattr(self, name) for name in self.policy_class.memory_parameters},
         )
         kwargs.update(self.policy_kwargs)
         self.policy = self.policy_class(self.observation_space, self.action_space, **kwargs)
+        for name, value in self.policy.memory_settings().items():
+            setattr(self, name, value)  # as the policy checked them (and ``policy_kwargs`` set them)
         self.policy.set_seed(self.seed)
         self.policy.exploration_rate = self.exploration_rate
         self._episodes = EpisodeRecorder(initial_length=1024)

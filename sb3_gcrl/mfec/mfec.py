@@ -9,9 +9,12 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
 
+from sb3_gcrl.common.arguments import constructor_defaults
 from sb3_gcrl.common.episodic_control import EpisodicControlAlgorithm
-from sb3_gcrl.common.validation import check_int
 from sb3_gcrl.mfec.policies import MFECPolicy
+
+#: the memory settings' defaults, stated by the policy
+_MEMORY = constructor_defaults(MFECPolicy)
 
 
 class MFEC(EpisodicControlAlgorithm):
@@ -51,16 +54,15 @@ class MFEC(EpisodicControlAlgorithm):
         self,
         policy: str | type[MFECPolicy],
         env: GymEnv | str,
-        capacity_per_action: int = 100_000,
-        n_neighbors: int = 3,
+        capacity_per_action: int = _MEMORY["capacity_per_action"],
+        n_neighbors: int = _MEMORY["n_neighbors"],
         exploration_initial_eps: float = 0.1,
         exploration_final_eps: float = 0.005,
         exploration_fraction: float = 0.1,
         projection_dim: int | None = 8,
         **kwargs: Any,
     ) -> None:
-        self.capacity_per_action = check_int("capacity_per_action", capacity_per_action)
-        self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
+        self._keep_memory_settings(locals())
         super().__init__(
             policy, env, exploration_initial_eps, exploration_final_eps, exploration_fraction, projection_dim, **kwargs
         )
@@ -70,12 +72,6 @@ class MFEC(EpisodicControlAlgorithm):
             raise ValueError(
                 f"MFEC needs a Discrete action space, got {action_space}; use sb3_gcrl.CEC for continuous (Box) actions"
             )
-
-    def _policy_memory_kwargs(self) -> dict[str, Any]:
-        return dict(
-            capacity_per_action=self.capacity_per_action,
-            n_neighbors=self.n_neighbors,
-        )
 
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
         added = self.policy.memory.update_episode(keys, actions - self.policy.action_start, returns)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces
@@ -25,6 +25,9 @@ class MFECPolicy(EpisodicControlPolicy):
     :param action_space: ``Discrete`` action space.
     :param capacity_per_action: rows per action table.
     :param n_neighbors: ``k`` of the kNN estimate.
+
+    The defaults of the memory settings are those of :class:`~sb3_gcrl.mfec.MFEC`, which reads them here.
+
     :param kwargs: the :class:`~sb3_gcrl.common.EpisodicControlPolicy` arguments (``projection_dim``,
         ``observation_keys``, ``seed``, ``knn_backend``, ``rebuild_threshold``).
     :raises TypeError: naming ``MFEC.load`` when SB3's own ``load`` (``SAC.load``) builds this policy from a MFEC
@@ -32,6 +35,7 @@ class MFECPolicy(EpisodicControlPolicy):
     """
 
     action_space: spaces.Discrete
+    memory_parameters: ClassVar[tuple[str, ...]] = ("capacity_per_action", "n_neighbors")
 
     def __init__(
         self,
@@ -63,14 +67,6 @@ class MFECPolicy(EpisodicControlPolicy):
         (:func:`~sb3_gcrl.common.actors.mfec_actions`)."""
         actions, known = mfec_actions(self.memory, keys, self.rng, deterministic, self.exploration_rate)
         return actions + self.action_start, known
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(
-            capacity_per_action=self.memory.capacity_per_action,
-            n_neighbors=self.memory.n_neighbors,
-        )
-        return data
 
 
 MlpPolicy = MFECPolicy

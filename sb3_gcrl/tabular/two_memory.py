@@ -7,9 +7,13 @@ from typing import Any, ClassVar
 import numpy as np
 from stable_baselines3.common.policies import BasePolicy
 
+from sb3_gcrl.common.arguments import constructor_defaults
 from sb3_gcrl.tabular.policies import TabularTwoMemoryPolicy
 from sb3_gcrl.tabular.q_learning import TabularQLearning
 from sb3_gcrl.two_memory.dispatch import TwoMemoryAlgorithmMixin
+
+#: the EC settings' defaults, stated by the policy
+_POLICY = constructor_defaults(TabularTwoMemoryPolicy)
 
 
 class TabularTwoMemory(TwoMemoryAlgorithmMixin, TabularQLearning):
@@ -40,8 +44,8 @@ class TabularTwoMemory(TwoMemoryAlgorithmMixin, TabularQLearning):
         policy: str | type[BasePolicy] = "TabularTwoMemoryPolicy",
         env: Any = None,
         *,
-        unseen_value: float = 0.0,
-        initial_q: float = 0.0,
+        unseen_value: float = _POLICY["unseen_value"],
+        initial_q: float = _POLICY["initial_q"],
         **kwargs: Any,
     ) -> None:
         super().__init__(policy, env, ec_kwargs=self.policy_settings(locals()), **kwargs)

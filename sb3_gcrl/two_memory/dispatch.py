@@ -36,6 +36,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.policies import BasePolicy
 
+from sb3_gcrl.common.arguments import settings_among
 from sb3_gcrl.common.episodes import EpisodeRecorder, truncated_ends
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
@@ -519,13 +520,13 @@ class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRu
     @classmethod
     def policy_settings(cls, arguments: dict[str, Any]) -> dict[str, Any]:
         """The policy's settings among a subclass constructor's arguments (``locals()``): those named in the 2M
-        policy class's ``ec_parameters``, which the subclass takes under the same names.
+        policy class's ``ec_parameters``, which the subclass takes under the same names (with the policy's defaults,
+        :func:`~sb3_gcrl.common.arguments.constructor_defaults`).
 
         :param arguments: the constructor's arguments by name.
         :return: the settings to hand to the policy (``ec_kwargs``).
         """
-        names = cls.two_memory_policy_class.ec_parameters  # type: ignore[attr-defined]
-        return {name: value for name, value in arguments.items() if name in names}
+        return settings_among(arguments, cls.two_memory_policy_class.ec_parameters)  # type: ignore[attr-defined]
 
     @property
     def p_ec(self) -> float:

@@ -8,6 +8,7 @@ from gymnasium import spaces
 from stable_baselines3 import DQN, SAC
 from stable_baselines3.common.policies import BasePolicy
 
+from sb3_gcrl.common.arguments import constructor_defaults
 from sb3_gcrl.two_memory.dispatch import TwoMemoryAlgorithmMixin
 from sb3_gcrl.two_memory.policies import (
     TwoMemoryDQNPolicy,
@@ -16,6 +17,10 @@ from sb3_gcrl.two_memory.policies import (
     TwoMemoryMultiInputSACPolicy,
     TwoMemorySACPolicy,
 )
+
+#: the EC settings' defaults, stated by the policies (stock DQN and SAC build them alone)
+_MFEC = constructor_defaults(TwoMemoryDQNPolicy)
+_CEC = constructor_defaults(TwoMemorySACPolicy)
 
 
 class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
@@ -61,10 +66,10 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
         policy: str | type[TwoMemoryDQNPolicy],
         env: Any,
         *,
-        ec_projection_dim: int | None = 8,
-        ec_capacity_per_action: int | None = None,
-        ec_n_neighbors: int = 3,
-        knn_backend: str = "auto",
+        ec_projection_dim: int | None = _MFEC["ec_projection_dim"],
+        ec_capacity_per_action: int | None = _MFEC["ec_capacity_per_action"],
+        ec_n_neighbors: int = _MFEC["ec_n_neighbors"],
+        knn_backend: str = _MFEC["knn_backend"],
         **kwargs: Any,
     ) -> None:
         super().__init__(policy, env, ec_kwargs=self.policy_settings(locals()), **kwargs)
@@ -110,15 +115,15 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
         policy: str | type[TwoMemorySACPolicy],
         env: Any,
         *,
-        ec_projection_dim: int | None = None,
-        ec_capacity: int = 100_000,
-        ec_distance_threshold: float = 0.1,
-        ec_filter_factor: float = 1.0,
-        ec_n_neighbors: int = 5,
-        ec_temperature: float = 0.1,
-        ec_epsilon: float = 0.1,
-        ec_noise_std: float = 0.1,
-        knn_backend: str = "auto",
+        ec_projection_dim: int | None = _CEC["ec_projection_dim"],
+        ec_capacity: int = _CEC["ec_capacity"],
+        ec_distance_threshold: float = _CEC["ec_distance_threshold"],
+        ec_filter_factor: float = _CEC["ec_filter_factor"],
+        ec_n_neighbors: int = _CEC["ec_n_neighbors"],
+        ec_temperature: float = _CEC["ec_temperature"],
+        ec_epsilon: float = _CEC["ec_epsilon"],
+        ec_noise_std: float = _CEC["ec_noise_std"],
+        knn_backend: str = _CEC["knn_backend"],
         **kwargs: Any,
     ) -> None:
         super().__init__(policy, env, ec_kwargs=self.policy_settings(locals()), **kwargs)
