@@ -5,7 +5,8 @@ Algorithm 1, UPDATE; Eq. 5.2 for the tabular memory; Algorithm 2 for the episodi
 collects through SB3's ``collect_rollouts`` records every env step with :meth:`EpisodeRecorder.record` and gets back
 the episodes that ended (:class:`FinishedEpisode`); :meth:`FinishedEpisode.updates_memory` says whether one may update
 the memory: a time-limit cut (:func:`truncated_ends`) does only when the algorithm's ``update_truncated`` setting
-allows it (the thesis's update runs on every finished episode).
+allows it (the thesis's update runs on every finished episode). :class:`EpisodeRecordingMixin` keeps such a record
+in an SB3 algorithm.
 """
 
 from __future__ import annotations
@@ -110,3 +111,24 @@ class EpisodeRecorder:
             FinishedEpisode(int(env_index), *self.buffers.pop(int(env_index)), bool(truncated[env_index]))
             for env_index in np.flatnonzero(dones)
         ]
+
+
+class EpisodeRecordingMixin:
+    """Mix in before an SB3 algorithm that records the running episodes of its training envs in ``_episodes`` (an
+    :class:`EpisodeRecorder`, made by the algorithm's constructor or set-up).
+
+    ``learn`` forgets them when it resets the envs (their running episodes are gone), and ``save`` leaves them out (a
+    loaded model starts on reset envs).
+    """
+
+    _episodes: EpisodeRecorder
+
+    def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
+        previous_obs = self._last_obs  # type: ignore[attr-defined]
+        result = super()._setup_learn(*args, **kwargs)  # type: ignore[misc]
+        if self._last_obs is not previous_obs:  # type: ignore[attr-defined]  (SB3 reset the envs)
+            self._episodes.reset()
+        return result
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_episodes"]  # type: ignore[misc]

@@ -24,14 +24,13 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import LinearSchedule, safe_mean
 
 from sb3_gcrl.common.arguments import settings_among
-from sb3_gcrl.common.episodes import EpisodeRecorder
+from sb3_gcrl.common.episodes import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.validation import check_choice, check_finite_rewards, check_float, check_int, check_optional_int
 from sb3_gcrl.memory.embedding import KeyEmbedding
@@ -216,7 +215,7 @@ class EpisodicControlPolicy(BasePolicy):
         return data
 
 
-class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
+class EpisodicControlAlgorithm(EpisodeRecordingMixin, ModelFileMixin, BaseAlgorithm):
     """Learn loop of episodic control: act with the memory, update it after every finished episode.
 
     Subclasses set ``policy_aliases`` and implement :meth:`_check_spaces` and :meth:`_update_memory`. The first
@@ -449,28 +448,12 @@ class EpisodicControlAlgorithm(ModelFileMixin, BaseAlgorithm):
         )
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_episodes", "exploration_schedule", "_pending_env_seed"]
+        return [*super()._excluded_save_params(), "exploration_schedule", "_pending_env_seed"]
 
     def _reset_memory_stats(self) -> None:
         self._n_queries = 0
         self._n_hits = 0
         self._memory_counts: dict[str, int] = {}
-
-    def _setup_learn(
-        self,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        reset_num_timesteps: bool = True,
-        tb_log_name: str = "run",
-        progress_bar: bool = False,
-    ) -> tuple[int, BaseCallback]:
-        had_obs = self._last_obs is not None
-        total_timesteps, callback = super()._setup_learn(
-            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
-        )
-        if reset_num_timesteps or not had_obs:  # the envs were (re)set: running episodes start from scratch
-            self._episodes.reset()
-        return total_timesteps, callback
 
     def learn(
         self: SelfEpisodicControlAlgorithm,

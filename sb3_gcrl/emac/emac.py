@@ -17,7 +17,7 @@ from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 from torch.nn import functional as F
 
-from sb3_gcrl.common.episodes import EpisodeRecorder
+from sb3_gcrl.common.episodes import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.validation import check_bool, check_choice, check_float, check_int, check_optional_int
@@ -26,7 +26,7 @@ from sb3_gcrl.emac.policies import EMACPolicy, MultiInputEMACPolicy
 from sb3_gcrl.memory.knn import KNN_BACKENDS, KNNBackend
 
 
-class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
+class EMAC(EpisodeRecordingMixin, ModelFileMixin, ClassNamedRunsMixin, TD3):
     """Episodic Memory Actor-Critic: DDPG whose critic also regresses onto an episodic memory's Monte-Carlo estimate.
 
     Critic loss of the paper, for each critic ``Q_i`` (one, as in DDPG, by default)::
@@ -153,11 +153,7 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
         }
         super()._setup_model()
 
-    def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_episodes"]
-
     def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
-        previous_obs = self._last_obs  # type: ignore[has-type]
         result = super()._setup_learn(*args, **kwargs)
         normalize = self._vec_normalize_env
         if normalize is not None and normalize.norm_reward:
@@ -165,8 +161,6 @@ class EMAC(ModelFileMixin, ClassNamedRunsMixin, TD3):
                 "EMAC's memory stores Monte-Carlo returns of the env's rewards, which VecNormalize(norm_reward=True) "
                 "rescales with changing statistics before the critic sees them; use norm_reward=False"
             )
-        if self._last_obs is not previous_obs:  # the envs were (re)set: running episodes start from scratch
-            self._episodes.reset()
         return result
 
     def _store_transition(

@@ -8,13 +8,13 @@ import numpy as np
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 
-from sb3_gcrl.common.episodes import EpisodeRecorder
+from sb3_gcrl.common.episodes import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.common.validation import check_bool, check_unit_interval
 from sb3_gcrl.tabular.policies import TabularECPolicy
 from sb3_gcrl.tabular.tabular_algorithm import TabularAlgorithm
 
 
-class TabularEpisodicControl(TabularAlgorithm):
+class TabularEpisodicControl(EpisodeRecordingMixin, TabularAlgorithm):
     """Tabular episodic control: after each episode, ``Q_ec[s, a] = max(Q_ec[s, a], G_t)`` for every step (Eq. 5.2);
     act epsilon-greedily on ``Q_ec``. No replay buffer and no gradient steps: the only learning is the update at
     the end of each episode (per env with ``n_envs > 1``).
@@ -52,13 +52,6 @@ class TabularEpisodicControl(TabularAlgorithm):
     def ec_table(self) -> np.ndarray:
         return self.policy.ec_table
 
-    def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
-        previous_obs = self._last_obs
-        result = super()._setup_learn(*args, **kwargs)
-        if self._last_obs is not previous_obs:
-            self._episodes.reset()  # the envs were reset: their running episodes are gone
-        return result
-
     def _store_transition(
         self,
         replay_buffer: ReplayBuffer,
@@ -79,6 +72,3 @@ class TabularEpisodicControl(TabularAlgorithm):
     def train(self, gradient_steps: int, batch_size: int = 32) -> None:
         """Nothing to do between episodes (the table is updated in ``_store_transition``)."""
         self.logger.record("train/ec_visited_fraction", float(np.isfinite(self.ec_table).mean()))
-
-    def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_episodes"]
