@@ -23,6 +23,7 @@ from stable_baselines3.sac.policies import MultiInputPolicy, SACPolicy
 from torch import nn
 
 from sb3_gcrl.common.seeding import SeededGeneratorMixin
+from sb3_gcrl.common.validation import check_int
 from sb3_gcrl.reset_free_baselines.buffers import PhaseReplayBuffer, RelabeledRewards
 from sb3_gcrl.reset_free_baselines.forward_backward import ForwardBackwardSAC
 from sb3_gcrl.reset_free_baselines.reward_models import as_tensor
@@ -41,7 +42,8 @@ class BackwardRewardSAC(SeededGeneratorMixin, ForwardBackwardSAC):
     :param state_key: key of the Dict observation that the reward model reads (the state).
     :param reward_model_train_freq: env steps between two reward-model updates (MEDAL: 10).
     :param reward_model_gradient_steps: gradient steps of the reward model per update (MEDAL: 1).
-    :param reward_model_batch_size: batch of a reward-model step.
+    :param reward_model_batch_size: batch of a reward-model step (None: the algorithm's official value,
+        :attr:`default_reward_model_batch_size`).
     :param reward_model_kwargs: keyword arguments of the reward model (e.g. ``hidden``, ``learning_rate``).
     :param replay_buffer_class: a :class:`~sb3_gcrl.reset_free_baselines.PhaseReplayBuffer` (subclass), the default.
     :param _init_setup_model: build the networks at construction (SB3's load passes False).
@@ -52,6 +54,8 @@ class BackwardRewardSAC(SeededGeneratorMixin, ForwardBackwardSAC):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MultiInputPolicy": MultiInputPolicy}
     _single_column_buffers: ClassVar[bool] = True
     _reward_model_loss_name: ClassVar[str] = "reward_model_loss"
+    #: ``reward_model_batch_size`` when none is given (the one place where each algorithm's default lives)
+    default_reward_model_batch_size: ClassVar[int] = 256
     reward_model: nn.Module
     replay_buffer: PhaseReplayBuffer  # type: ignore[assignment]
     backward_buffer: PhaseReplayBuffer
@@ -63,7 +67,7 @@ class BackwardRewardSAC(SeededGeneratorMixin, ForwardBackwardSAC):
         state_key: str = "observation",
         reward_model_train_freq: int = 10,
         reward_model_gradient_steps: int = 1,
-        reward_model_batch_size: int = 256,
+        reward_model_batch_size: int | None = None,
         reward_model_kwargs: dict[str, Any] | None = None,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         _init_setup_model: bool = True,
@@ -74,17 +78,13 @@ class BackwardRewardSAC(SeededGeneratorMixin, ForwardBackwardSAC):
                 f"{type(self).__name__} keeps one PhaseReplayBuffer per policy; replay_buffer_class "
                 f"{replay_buffer_class.__name__} is not one (HER relabeling is not part of MEDAL/R3L): leave it out"
             )
-        for name, value in (
-            ("reward_model_train_freq", reward_model_train_freq),
-            ("reward_model_gradient_steps", reward_model_gradient_steps),
-            ("reward_model_batch_size", reward_model_batch_size),
-        ):
-            if int(value) != value or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value}")
         self.state_key = state_key
-        self.reward_model_train_freq = int(reward_model_train_freq)
-        self.reward_model_gradient_steps = int(reward_model_gradient_steps)
-        self.reward_model_batch_size = int(reward_model_batch_size)
+        self.reward_model_train_freq = check_int("reward_model_train_freq", reward_model_train_freq)
+        self.reward_model_gradient_steps = check_int("reward_model_gradient_steps", reward_model_gradient_steps)
+        self.reward_model_batch_size = check_int(
+            "reward_model_batch_size",
+            self.default_reward_model_batch_size if reward_model_batch_size is None else reward_model_batch_size,
+        )
         self.reward_model_kwargs = dict(reward_model_kwargs or {})
         self._reward_model_timestep: int | None = None
         super().__init__(

@@ -12,9 +12,10 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
-from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.sac.policies import SACPolicy
 
+from sb3_gcrl.common.validation import check_int
 from sb3_gcrl.reset_free_baselines.backward_reward import BackwardRewardSAC
 from sb3_gcrl.reset_free_baselines.demos import Demonstrations, load_demos
 from sb3_gcrl.reset_free_baselines.reward_models import Discriminator, as_tensor
@@ -33,12 +34,14 @@ class MEDAL(BackwardRewardSAC):
     :param demos: demonstrations: a ``.npz`` path, a task id with shipped demonstrations (e.g.
         ``"GCRL/PointUMazeGoal-v0"``) or a :class:`~sb3_gcrl.reset_free_baselines.Demonstrations`.
     :param demos_to_buffers: put the demonstrations into both replay buffers (the official code does).
-    :param reward_model_batch_size: discriminator batch, half demonstration states, half backward states (800).
+    :param reward_model_batch_size: discriminator batch, half demonstration states, half backward states (None:
+        the official 800; at least 2).
     :param kwargs: see :class:`~sb3_gcrl.reset_free_baselines.BackwardRewardSAC`.
     """
 
     log_prefix: ClassVar[str] = "medal"
     _reward_model_loss_name: ClassVar[str] = "discriminator_loss"
+    default_reward_model_batch_size: ClassVar[int] = 800
     reward_model: Discriminator
 
     def __init__(
@@ -47,25 +50,13 @@ class MEDAL(BackwardRewardSAC):
         env: GymEnv | str,
         demos: str | Path | Demonstrations | None = None,
         demos_to_buffers: bool = True,
-        learning_rate: float | Schedule = 3e-4,
-        reward_model_batch_size: int = 800,
         _init_setup_model: bool = True,
         **kwargs: Any,
     ) -> None:
-        if reward_model_batch_size < 2:
-            raise ValueError(
-                f"reward_model_batch_size must be >= 2 (half positives, half negatives), got {reward_model_batch_size}"
-            )
         self.demos = demos
         self.demos_to_buffers = demos_to_buffers
-        super().__init__(
-            policy,
-            env,
-            learning_rate=learning_rate,
-            reward_model_batch_size=reward_model_batch_size,
-            _init_setup_model=False,
-            **kwargs,
-        )
+        super().__init__(policy, env, _init_setup_model=False, **kwargs)
+        check_int("reward_model_batch_size (half positives, half negatives)", self.reward_model_batch_size, minimum=2)
         if _init_setup_model:
             self._setup_model()
 

@@ -9,10 +9,7 @@ env's sparse reward (departure: the thesis's R3L learns a VICE-style goal classi
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
-
-from stable_baselines3.common.type_aliases import GymEnv
-from stable_baselines3.sac.policies import SACPolicy
+from typing import ClassVar
 
 from sb3_gcrl.reset_free_baselines.backward_reward import BackwardRewardSAC
 from sb3_gcrl.reset_free_baselines.reward_models import RND
@@ -23,30 +20,15 @@ class R3L(BackwardRewardSAC):
 
     :param policy: SAC policy (``"MultiInputPolicy"``).
     :param env: goal env wrapped in ``ResetFreeWrapper`` and ``ForwardBackwardWrapper``.
-    :param reward_model_batch_size: RND predictor batch (DI-engine: 64).
+    :param reward_model_batch_size: RND predictor batch (None: DI-engine's 64).
     :param kwargs: see :class:`~sb3_gcrl.reset_free_baselines.BackwardRewardSAC`; ``reward_model_kwargs`` go to
         :class:`~sb3_gcrl.reset_free_baselines.reward_models.RND` (``hidden``, ``learning_rate``, ``obs_clip``).
     """
 
     log_prefix: ClassVar[str] = "r3l"
     _reward_model_loss_name: ClassVar[str] = "rnd_loss"
+    default_reward_model_batch_size: ClassVar[int] = 64
     reward_model: RND
-
-    def __init__(
-        self,
-        policy: str | type[SACPolicy],
-        env: GymEnv | str,
-        reward_model_batch_size: int = 64,
-        _init_setup_model: bool = True,
-        **kwargs: Any,
-    ) -> None:
-        super().__init__(
-            policy,
-            env,
-            reward_model_batch_size=reward_model_batch_size,
-            _init_setup_model=_init_setup_model,
-            **kwargs,
-        )
 
     @property
     def rnd(self) -> RND:
