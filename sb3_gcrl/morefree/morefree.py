@@ -58,8 +58,8 @@ DEFAULT_ALPHA = 0.2
 class MoReFree(ModelFileMixin, BaseAlgorithm):
     """Model-based reset-free goal-conditioned agent (MoReFree, thesis Ch. 3), PEG's state-input agent.
 
-    Defaults are PEG's point-maze settings (the thesis preset); the CPU preset is in
-    ``zoo_configs/morefree_*_cpu.yml``.
+    Defaults are PEG's point-maze settings (the thesis preset); the CPU presets are the sections
+    of ``zoo_configs/morefree.yml`` (the thesis preset: ``zoo_configs/morefree_thesis.yml``).
 
     :param policy: ``"MultiInputPolicy"`` / ``"MoReFreePolicy"`` or the class.
     :param env: goal env (Dict observation, Box actions); for reset-free training wrap it with

@@ -45,8 +45,8 @@ class IBC(ForwardBackwardSAC):
     both agents (the authors use the same settings for both). Defaults follow SB3's SAC; the authors' values (learning
     rate 1e-4, batch 512, tau 0.01, target update every 2 steps, initial temperature 0.5 (``ent_coef="auto_0.5"``),
     3 x 512 networks, HER ``future`` with 4 sampled goals (``replay_buffer_class=HerReplayBuffer``) on both agents)
-    are in the ``ibc_<task>.yml`` configs. Only the agent that acted is updated (official), one gradient step per env
-    step with ``train_freq=1``.
+    are in ``zoo_configs/ibc_thesis.yml`` (``zoo_configs/ibc.yml``: the CPU presets). Only the agent that acted is
+    updated (official), one gradient step per env step with ``train_freq=1``.
 
     :param policy: policy class or alias (``"MultiInputPolicy"``: goal observations are Dicts).
     :param env: goal env, normally wrapped by :func:`~sb3_gcrl.reset_free_baselines.ibc_go_explore` (one env in a
