@@ -8,7 +8,7 @@ Rates are per second of this process's CPU time (``time.process_time``), which a
 far less than wall time.
 
 A third env gives the floor any Python wrapper reaches here: ``MandatedWorkWrapper``, one layer doing only the work
-the issue mandates per step (recompute the reward for a commanded goal with ``compute_reward``, return a new
+the design requires per step (recompute the reward for a commanded goal with ``compute_reward``, return a new
 observation dict with that goal), nothing else.
 
 Two settings: the bare gymnasium env (the wrappers' own cost against the cheapest possible step) and the env as SB3
@@ -78,7 +78,7 @@ def vec_steps_per_second(env: VecEnv, actions: np.ndarray) -> float:
 
 
 def compute_reward_seconds(env: gym.Env, n: int) -> float:
-    """Seconds for ``n`` single-goal ``compute_reward`` calls: the one call per step the issue mandates."""
+    """Seconds for ``n`` single-goal ``compute_reward`` calls: the one call per step the design requires."""
     obs, _ = env.reset(seed=0)
     achieved, desired = obs["achieved_goal"], obs["desired_goal"]
     compute_reward = env.unwrapped.compute_reward

@@ -1,6 +1,6 @@
 """`sb3-gcrl compare`: method/env resolution, evaluation schedule, resume, crash isolation, Ray backend.
 
-The end-to-end test runs the issue's tiny comparison (2 methods x 2 seeds x 200 steps on Pendulum, 8-unit
+The end-to-end test runs a tiny comparison (2 methods x 2 seeds x 200 steps on Pendulum, 8-unit
 nets) once and checks it in phases (one test function, so that pytest-xdist never runs it twice).
 """
 
@@ -79,7 +79,7 @@ TINY_OPTIONS = dict(seeds=[0, 1], eval_freq=100, n_eval_episodes=1, progress=Fal
 
 
 def tiny_methods(configs: dict[str, Path]) -> list[str]:
-    """The tiny comparison of the issue: sac vs td3 (x 2 seeds x 200 steps, 8-unit nets)."""
+    """The tiny comparison: sac vs td3 (x 2 seeds x 200 steps, 8-unit nets)."""
     return [f"sac:{configs['sac']}", f"td3:{configs['td3']}"]
 
 
