@@ -203,13 +203,18 @@ def test_ctrl_c_stops_after_the_step_with_its_evaluation_and_twice_stops_at_once
     from sb3_gcrl.zoo_train import StopOnInterrupt, interrupts_between_steps
 
     stopper = StopOnInterrupt()
-    with interrupts_between_steps(stopper):
-        os.kill(os.getpid(), signal.SIGINT)  # the first Ctrl-C only asks
-        assert stopper.requested
-        with pytest.raises(KeyboardInterrupt):
-            os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(1)  # the handler runs between bytecodes; give it the chance
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    # Python's own Ctrl-C handler before the run, whatever this process inherited (nohup, CI runners: SIG_IGN)
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with interrupts_between_steps(stopper):
+            os.kill(os.getpid(), signal.SIGINT)  # the first Ctrl-C only asks
+            assert stopper.requested
+            with pytest.raises(KeyboardInterrupt):
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(1)  # the handler runs between bytecodes; give it the chance
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, inherited)
 
 
 def test_an_interruption_during_an_evaluation_keeps_that_evaluation(tmp_path: Path) -> None:
