@@ -18,12 +18,12 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ ids)
-from sb3_gcrl.envs.reset_free import RESET_FREE_ENV_IDS, RESET_FREE_TASKS, register_reset_free_envs
 from sb3_gcrl.envs.reset_free import ant as ant_module
 from sb3_gcrl.envs.reset_free import fetch as fetch_module
 from sb3_gcrl.envs.reset_free import sawyer_door as door_module
 from sb3_gcrl.envs.reset_free import tabletop as tabletop_module
 from sb3_gcrl.envs.reset_free.tabletop import TabletopEnv
+from sb3_gcrl.envs.tasks import RESET_FREE_ENV_IDS, TASKS, register_tasks
 
 HAS_METAWORLD = importlib.util.find_spec("metaworld") is not None
 needs_metaworld = pytest.mark.skipif(not HAS_METAWORLD, reason="metaworld not installed (optional)")
@@ -47,14 +47,6 @@ SPACES = {
 }
 
 
-THRESHOLDS = {
-    **dict.fromkeys(FETCH_IBC_IDS + FETCH_HARD_IDS, fetch_module.DISTANCE_THRESHOLD),
-    "GCRL/AntArena-v0": ant_module.SUCCESS_THRESHOLD,
-    "GCRL/Tabletop-v0": tabletop_module.SUCCESS_THRESHOLD,
-    "GCRL/SawyerDoor-v0": door_module.SUCCESS_THRESHOLD,
-}
-
-
 @pytest.fixture(scope="module")
 def envs():
     """One instance of each env, shared by the read-only tests of this module."""
@@ -71,24 +63,42 @@ def get_env(envs: dict, env_id: str) -> gym.Env:
 
 
 def test_registry_matches_task_table():
-    register_reset_free_envs()  # idempotent
-    assert len(RESET_FREE_ENV_IDS) == 7 and len(RESET_FREE_TASKS) == 8  # + PointUMaze, registered by envs/
-    for env_id in RESET_FREE_ENV_IDS:
-        assert gym.spec(env_id).max_episode_steps == RESET_FREE_TASKS[env_id].eval_horizon
-        assert env_id.startswith("GCRL/")
-    point_maze = RESET_FREE_TASKS["GCRL/PointUMazeGoal-v0"]
-    assert point_maze.env_id in gym.registry
-    assert (point_maze.eval_horizon, point_maze.hard_reset_every) == (100, 200_000)
+    register_tasks()  # idempotent
+    reset_free = {env_id for env_id, task in TASKS.items() if task.reset_free}
+    assert len(RESET_FREE_ENV_IDS) == 7 and reset_free == {*RESET_FREE_ENV_IDS, "GCRL/PointUMazeGoal-v0"}
+    for env_id in reset_free:
+        assert gym.spec(env_id).max_episode_steps == TASKS[env_id].eval_horizon
+        assert env_id.startswith("GCRL/") and TASKS[env_id].train_horizon == TASKS[env_id].hard_reset_every
+    point_maze = TASKS["GCRL/PointUMazeGoal-v0"]
+    assert (point_maze.eval_horizon, point_maze.hard_reset_every) == (300, 200_000)
     env = gym.make(point_maze.env_id).unwrapped
     rng = np.random.default_rng(0)
     for goal in (env.sample_initial_goal(rng), env.sample_evaluation_goal(rng)):
         assert np.all(goal >= point_maze.goal_low) and np.all(goal <= point_maze.goal_high)
     env.close()
-    assert RESET_FREE_TASKS["GCRL/Tabletop-v0"].eval_horizon == tabletop_module.EVAL_HORIZON == 200
-    assert RESET_FREE_TASKS["GCRL/AntArena-v0"].eval_horizon == ant_module.EVAL_HORIZON == 500
-    assert RESET_FREE_TASKS["GCRL/SawyerDoor-v0"].eval_horizon == door_module.EVAL_HORIZON == 300
-    assert fetch_module.EVAL_HORIZON == 50 and fetch_module.HARD_RESET_EVERY == 100_000
-    assert tabletop_module.HARD_RESET_EVERY == ant_module.HARD_RESET_EVERY == door_module.HARD_RESET_EVERY == 200_000
+    # the thesis's protocol (Section 3.7.1): evaluation steps and hard-reset interval per task
+    protocol = {env_id: (TASKS[env_id].eval_horizon, TASKS[env_id].hard_reset_every) for env_id in RESET_FREE_ENV_IDS}
+    assert protocol == {
+        "GCRL/ErgodicFetchPush-v0": (50, 100_000),
+        "GCRL/ErgodicFetchPickAndPlace-v0": (50, 100_000),
+        "GCRL/FetchPushHard-v0": (50, 100_000),
+        "GCRL/FetchPickAndPlaceHard-v0": (50, 100_000),
+        "GCRL/AntArena-v0": (500, 200_000),
+        "GCRL/Tabletop-v0": (200, 200_000),
+        "GCRL/SawyerDoor-v0": (300, 200_000),
+    }
+
+
+def test_deprecated_reset_free_names_warn_and_point_to_the_task_table():
+    import sb3_gcrl.envs.reset_free as reset_free
+
+    with pytest.warns(DeprecationWarning, match="sb3_gcrl.envs.tasks.TASKS"):
+        old_table = reset_free.RESET_FREE_TASKS
+    assert old_table == {env_id: task for env_id, task in TASKS.items() if task.reset_free} and len(old_table) == 8
+    with pytest.warns(DeprecationWarning, match="register_tasks"):
+        assert reset_free.register_reset_free_envs is register_tasks
+    with pytest.raises(AttributeError):
+        reset_free.NO_SUCH_NAME  # noqa: B018
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
@@ -119,15 +129,16 @@ def test_compute_reward_vectorised_and_consistent_with_step(envs, env_id):
     # Offsets of 0, 0.5 and 1.5 success radii in random directions: both outcomes occur.
     direction = rng.normal(size=desired.shape)
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    assert unwrapped.distance_threshold == pytest.approx(THRESHOLDS[env_id])  # the success radius, by its usual name
-    radius = THRESHOLDS[env_id] * np.resize([0.0, 0.5, 1.5, 1.5], len(desired))[:, None]
+    threshold = TASKS[env_id].success_threshold  # the task table's, the env's by its usual name
+    assert unwrapped.distance_threshold == pytest.approx(threshold)
+    radius = threshold * np.resize([0.0, 0.5, 1.5, 1.5], len(desired))[:, None]
     achieved = desired + radius * direction
     batch = unwrapped.compute_reward(achieved, desired, {})
     single = np.array([unwrapped.compute_reward(a, d, {}) for a, d in zip(achieved, desired)])
     assert batch.shape == (16,)
     np.testing.assert_array_equal(batch, single)
     success = unwrapped.compute_reward(desired, desired, {})[0]
-    np.testing.assert_array_equal(batch == success, radius[:, 0] < THRESHOLDS[env_id])
+    np.testing.assert_array_equal(batch == success, radius[:, 0] < threshold)
     for _ in range(5):
         obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
         assert reward == unwrapped.compute_reward(obs["achieved_goal"], obs["desired_goal"], info)
@@ -404,7 +415,7 @@ def test_tabletop_goals_and_scripted_solution():
     for seed in range(4):
         obs, _ = env.reset(seed=seed)
         success = False
-        for _ in range(tabletop_module.EVAL_HORIZON):
+        for _ in range(TASKS["GCRL/Tabletop-v0"].eval_horizon):
             fist, mug, target = obs["observation"][:2], obs["observation"][2:4], obs["desired_goal"][2:]
             held = obs["observation"][4] == 0.0
             if np.linalg.norm(mug - target) > 0.05:
@@ -455,7 +466,7 @@ def test_sawyer_door_start_goal_and_scripted_close():
     np.testing.assert_allclose(obs["desired_goal"], env.sample_evaluation_goal(None))
     # metaworld's scripted door-close policy closes it within the evaluation horizon.
     policy = SawyerDoorCloseV3Policy()
-    for _ in range(door_module.EVAL_HORIZON):
+    for _ in range(TASKS["GCRL/SawyerDoor-v0"].eval_horizon):
         raw = env._sim._get_obs()
         raw[-3:] = env._sim._target_pos
         obs, reward, *_, info = env.step(policy.get_action(raw))
@@ -502,7 +513,7 @@ def test_sac_her_runs_on_each_env(env_id):
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_goal_box_contains_task_goals_and_visited_goals(envs, env_id):
-    task = RESET_FREE_TASKS[env_id]
+    task = TASKS[env_id]
     env = get_env(envs, env_id)
     low, high = np.asarray(task.goal_low), np.asarray(task.goal_high)
     assert low.shape == high.shape == env.observation_space["achieved_goal"].shape
@@ -532,7 +543,7 @@ def test_pick_and_place_hard_is_solvable_by_a_scripted_grasp():
     for seed in range(3):
         obs, _ = env.reset(seed=seed)
         phase, info = "approach", {}
-        for _ in range(fetch_module.EVAL_HORIZON):
+        for _ in range(TASKS["GCRL/FetchPickAndPlaceHard-v0"].eval_horizon):
             gripper, block, fingers = obs["observation"][:3], obs["observation"][3:6], obs["observation"][9:11]
             if phase == "approach":
                 target, grip = block + np.array([0.0, 0.0, 0.05]), 1.0

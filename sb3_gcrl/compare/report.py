@@ -338,12 +338,12 @@ def _memory_choice_figures(output: Path, summary: Summary) -> str:
 def _visitation_figures(output: Path, summary: Summary, bins: int = 40) -> str:
     """Fig. 3.5-style state-visitation heatmaps (achieved goals of the training data, all seeds of a method).
 
-    Two goal dimensions are drawn: those the reset-free suite names for the env (the mug's XY on Tabletop, as Fig.
+    Two goal dimensions are drawn: those the task table names for the env (the mug's XY on Tabletop, as Fig.
     3.9), else a 2-D goal space's; other envs get none (their visited goals still serve ``reproduce_ch3``'s
     task-relevant share). Suite envs are drawn over their whole goal box, with samples of rho_0 and rho_g* as white
     dots (the thesis's circles).
     """
-    from sb3_gcrl.envs.reset_free import RESET_FREE_TASKS
+    from sb3_gcrl.envs.tasks import find_task
 
     lines = []
     for env_id in dict.fromkeys(env for env, _ in summary.run_dirs):
@@ -352,7 +352,8 @@ def _visitation_figures(output: Path, summary: Summary, bins: int = 40) -> str:
             files = [run_dir / VISITED_FILE for run_dir in run_dirs if (run_dir / VISITED_FILE).is_file()]
             if env == env_id and files:
                 points[method] = np.concatenate([np.load(file) for file in files])
-        task = RESET_FREE_TASKS.get(env_id)
+        task = find_task(env_id)
+        task = task if task is not None and task.goal_low is not None else None
         dims = task.visitation_dims if task is not None else (0, 1)
         goal_dims = {goals.shape[-1] for goals in points.values()}
         if not points or len(goal_dims) > 1 or (task is None and goal_dims != {2}) or max(dims) >= min(goal_dims):

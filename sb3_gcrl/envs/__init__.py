@@ -3,6 +3,7 @@
 :func:`register_envs` runs when ``sb3_gcrl`` is imported; it also registers the gymnasium-robotics
 and MinAtar environments so that no extra user step is needed. ``GCRL_ENV_IDS`` lists our ids; each
 module documents its task's thesis source, spaces, reward, horizon and departures (table: docs/envs.md).
+:data:`~sb3_gcrl.envs.tasks.TASKS` is the one table of the tasks (horizons, goal space, success threshold).
 """
 
 from __future__ import annotations
@@ -21,16 +22,10 @@ from sb3_gcrl.envs.minigrid_tabular import (
     encode_state,
     make_tabular_minigrid,
 )
-from sb3_gcrl.envs.point_maze import (
-    FOUR_ROOMS_GOAL_CELL,
-    FOUR_ROOMS_MAP,
-    FOUR_ROOMS_START_CELL,
-    FOUR_ROOMS_SUBGOAL_CELLS,
-    PointMazeGoalTaskEnv,
-    PointMazeTaskEnv,
-)
+from sb3_gcrl.envs.point_maze import PointMazeGoalTaskEnv, PointMazeTaskEnv
 from sb3_gcrl.envs.safety_nav import CarGoalEnv, PointGoalEnv, SafetyGoalEnv
 from sb3_gcrl.envs.sparse_mountain_car import SparseMountainCarContinuousEnv
+from sb3_gcrl.envs.tasks import RESET_FREE_ENV_IDS, TASKS, Task, find_task, register_tasks
 from sb3_gcrl.envs.windy_grid import (
     WindyGridEnv,
     windy_grid_optimal_value,
@@ -40,50 +35,9 @@ from sb3_gcrl.envs.windy_grid import (
 
 NAMESPACE = "GCRL"
 
-_FOUR_ROOMS = {"maze_map": FOUR_ROOMS_MAP, "start_cell": FOUR_ROOMS_START_CELL, "goal_cell": FOUR_ROOMS_GOAL_CELL}
-
-# id -> (entry point, max_episode_steps, kwargs)
-_ENV_SPECS: dict[str, tuple[str, int | None, dict]] = {
-    "GCRL/GrowingTree-v0": ("sb3_gcrl.envs.growing_tree:GrowingTreeEnv", 200, {}),
-    "GCRL/GrowingTreeGoal-v0": ("sb3_gcrl.envs.growing_tree:GrowingTreeGoalEnv", 200, {}),
-    "GCRL/WindyGrid-v0": ("sb3_gcrl.envs.windy_grid:WindyGridEnv", 100, {}),
-    "GCRL/SparseMountainCarContinuous-v0": (
-        "sb3_gcrl.envs.sparse_mountain_car:SparseMountainCarContinuousEnv",
-        999,
-        {},
-    ),
-    "GCRL/PointUMaze-v0": ("sb3_gcrl.envs.point_maze:PointMazeTaskEnv", 1000, {}),
-    "GCRL/Point4Rooms-v0": ("sb3_gcrl.envs.point_maze:PointMazeTaskEnv", 1000, _FOUR_ROOMS),
-    "GCRL/PointUMazeGoal-v0": ("sb3_gcrl.envs.point_maze:PointMazeGoalTaskEnv", 300, {}),
-    "GCRL/Point4RoomsGoal-v0": ("sb3_gcrl.envs.point_maze:PointMazeGoalTaskEnv", 600, _FOUR_ROOMS),
-    "GCRL/Point4RoomsSubgoals-v0": (
-        "sb3_gcrl.envs.point_maze:PointMazeTaskEnv",
-        1000,
-        {**_FOUR_ROOMS, "subgoal_cells": FOUR_ROOMS_SUBGOAL_CELLS},
-    ),
-    # Safety-Gym's Goal0 level with the Point / Car robot (1000 steps as Safety-Gym).
-    "GCRL/PointGoal-v0": ("sb3_gcrl.envs.safety_nav:PointGoalEnv", 1000, {}),
-    "GCRL/CarGoal-v0": ("sb3_gcrl.envs.safety_nav:CarGoalEnv", 1000, {}),
-    # MiniGrid truncates at its own max_steps (FourRooms 100, LavaCrossingS9N1 324, LavaGapS7 196).
-    "GCRL/FourRoomsTabular-v0": (
-        "sb3_gcrl.envs.minigrid_tabular:make_tabular_minigrid",
-        None,
-        {"minigrid_id": "MiniGrid-FourRooms-v0", "cache_layout": True},
-    ),
-    "GCRL/LavaCrossingTabular-v0": (
-        "sb3_gcrl.envs.minigrid_tabular:make_tabular_minigrid",
-        None,
-        {"minigrid_id": "MiniGrid-LavaCrossingS9N1-v0", "cache_layout": True},
-    ),
-    "GCRL/LavaGapTabular-v0": (
-        "sb3_gcrl.envs.minigrid_tabular:make_tabular_minigrid",
-        None,
-        {"minigrid_id": "MiniGrid-LavaGapS7-v0", "cache_layout": True},
-    ),
-}
-
-GCRL_ENV_IDS: tuple[str, ...] = tuple(_ENV_SPECS)
-"""Every environment id this package registers itself (the reset-free suite adds its own)."""
+GCRL_ENV_IDS: tuple[str, ...] = tuple(task.env_id for task in TASKS.values() if task.env_id not in RESET_FREE_ENV_IDS)
+"""The package's ids outside the reset-free suite of Ch. 3 (:data:`~sb3_gcrl.envs.tasks.RESET_FREE_ENV_IDS`, which
+needs MuJoCo scenes, and metaworld for Sawyer Door); :data:`~sb3_gcrl.envs.tasks.TASKS` has them all."""
 
 MINATAR_ENV_IDS: tuple[str, ...] = tuple(
     f"MinAtar/{game}-v1" for game in ("Breakout", "SpaceInvaders", "Asterix", "Seaquest", "Freeway")
@@ -134,16 +88,12 @@ def _register_third_party() -> None:
 def register_envs() -> None:
     """Register every environment of the package (idempotent)."""
     _register_third_party()
-    for env_id, (entry_point, max_episode_steps, kwargs) in _ENV_SPECS.items():
-        if env_id not in gym.registry:
-            gym.register(env_id, entry_point=entry_point, max_episode_steps=max_episode_steps, kwargs=kwargs)
-    from sb3_gcrl.envs.reset_free import register_reset_free_envs  # reset-free task suite (thesis Ch. 3)
-
-    register_reset_free_envs()
+    register_tasks()
 
 
 __all__ = [
     "GCRL_ENV_IDS",
+    "RESET_FREE_ENV_IDS",
     "MINATAR_ENV_IDS",
     "NAMESPACE",
     "CarGoalEnv",
@@ -155,10 +105,13 @@ __all__ = [
     "PointMazeTaskEnv",
     "SafetyGoalEnv",
     "SparseMountainCarContinuousEnv",
+    "TASKS",
+    "Task",
     "TabularMiniGridObservation",
     "WindyGridEnv",
     "decode_state",
     "encode_state",
+    "find_task",
     "make_tabular_minigrid",
     "register_envs",
     "windy_grid_optimal_value",

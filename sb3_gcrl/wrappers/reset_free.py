@@ -27,12 +27,10 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 from gymnasium.wrappers import TimeLimit
 
+from sb3_gcrl.envs.tasks import EARL_HARD_RESET_EVERY, find_task
 from sb3_gcrl.wrappers.goal_env import record_constructor_args
 from sb3_gcrl.wrappers.mode import TrainingModeMixin
 from sb3_gcrl.wrappers.segments import missing_info_keyword
-
-#: EARL's default interval between hard resets (tabletop, sawyer door, IBC PointUMaze)
-EARL_HARD_RESET_EVERY = 200_000
 
 
 class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -40,11 +38,13 @@ class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstruct
 
     :param env: the env to train without resets: any gymnasium env (a plain env is fine; the goal wrappers on
         top, which MoReFree needs, require a goal env).
-    :param hard_reset_every: env steps between two physical resets (interventions) in reset-free mode.
+    :param hard_reset_every: env steps between two physical resets (interventions) in reset-free mode; ``None``:
+        the task's (:data:`sb3_gcrl.envs.tasks.TASKS`, EARL/IBC protocol), or EARL's 2e5 for an env the table lacks.
     :param segment_length: length of the segments SB3 sees in reset-free mode (``None``: segments end only at
         hard resets, or when an outer wrapper truncates, e.g. :class:`GoExploreWrapper` after each Go-Explore).
-    :param eval_horizon: episode length in episodic mode (evaluation), e.g. 100 for PointUMaze; ``None`` keeps
-        the inner env's own time limit.
+    :param eval_horizon: episode length in episodic mode (evaluation); ``None``: the task's (the table's, which
+        is also its registered ``max_episode_steps``), or the inner env's own time limit for an env the table
+        lacks (``None`` when it has none).
     """
 
     run_state_attributes = ("interventions", "terminal_interventions", "total_steps")
@@ -52,7 +52,7 @@ class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstruct
     def __init__(
         self,
         env: gym.Env,
-        hard_reset_every: int = EARL_HARD_RESET_EVERY,
+        hard_reset_every: int | None = None,
         segment_length: int | None = None,
         eval_horizon: int | None = None,
     ) -> None:
@@ -65,6 +65,11 @@ class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstruct
         ):
             if value is not None and (int(value) != value or value < 1):
                 raise ValueError(f"{name} must be a positive integer, got {value}")
+        task = find_task(env)
+        if hard_reset_every is None:
+            hard_reset_every = task.hard_reset_every if task is not None and task.reset_free else EARL_HARD_RESET_EVERY
+        if eval_horizon is None and task is not None:
+            eval_horizon = task.eval_horizon
         self.hard_reset_every = int(hard_reset_every)
         self.segment_length = None if segment_length is None else int(segment_length)
         self.eval_horizon = None if eval_horizon is None else int(eval_horizon)
@@ -91,6 +96,8 @@ class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstruct
             has_monitor = has_monitor or type(inner).__name__ == "Monitor"
             inner = inner.env
         self._own_limits = [limit._max_episode_steps for limit in self._time_limits]
+        if self.eval_horizon is None and self._own_limits:  # an env of your own: its time limit
+            self.eval_horizon = int(min(self._own_limits))
         if self.eval_horizon is not None:
             if not self._time_limits and has_monitor:
                 raise ValueError(

@@ -31,10 +31,6 @@ from gymnasium_robotics.envs.maze.maze_v4 import MazeEnv
 
 from sb3_gcrl.envs.reset_free.reset_options import commanded_goal
 
-#: Evaluation episode length (steps), thesis Section 3.7.1.
-EVAL_HORIZON = 500
-#: Physical (hard) reset interval of reset-free training, thesis Section 3.7.1.
-HARD_RESET_EVERY = 200_000
 #: Success radius on torso xy (AntMaze).
 SUCCESS_THRESHOLD = 0.45
 #: Open square arena: 2 x 2 free cells of size 4 inside a wall border, i.e. the free square [-4, 4]^2.
@@ -61,8 +57,6 @@ class AntArenaEnv(AntMazeEnv):
     :param kwargs: forwarded to Gymnasium's ``Ant-v5`` (``include_cfrc_ext_in_observation`` defaults to False).
     """
 
-    EVAL_HORIZON: ClassVar[int] = EVAL_HORIZON
-    HARD_RESET_EVERY: ClassVar[int] = HARD_RESET_EVERY
     #: success radius in goal space (the name gymnasium-robotics' goal envs use)
     distance_threshold: ClassVar[float] = SUCCESS_THRESHOLD
 

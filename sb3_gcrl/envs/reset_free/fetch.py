@@ -6,7 +6,7 @@ Four goal environments built on gymnasium-robotics' ``MujocoFetchEnv`` (the ``Fe
 ``achieved_goal``/``desired_goal`` (3,) block position, action Box(-1, 1, (4,)) (xyz gripper displacement
 x 5 cm + finger command), sparse reward ``-(d > 0.05)`` with ``info["is_success"] = d < 0.05`` (Fetch's). They
 never terminate: the block cannot leave the table, so every state can be left. Registered with
-``max_episode_steps=EVAL_HORIZON``.
+``max_episode_steps`` = the evaluation horizon of the task table (50 steps).
 
 Keeping the block in: the walls' contacts are stiffer than MuJoCo's defaults (a gripper pressing the block into
 a wall would otherwise squeeze it through the soft contact - with object-only walls, which the arm passes, in
@@ -59,10 +59,6 @@ from gymnasium_robotics.envs.fetch.push import MODEL_XML_PATH as PUSH_XML
 
 from sb3_gcrl.envs.reset_free.reset_options import commanded_goal
 
-#: Evaluation episode length (steps), thesis Section 3.7.1 / IBC.
-EVAL_HORIZON = 50
-#: Physical (hard) reset interval of reset-free training, thesis Section 3.7.1 / IBC ``train_horizon``.
-HARD_RESET_EVERY = 100_000
 #: Goal-reaching threshold on the block position (metres), as Fetch.
 DISTANCE_THRESHOLD = 0.05
 
@@ -109,8 +105,6 @@ class WalledFetchEnv(MujocoFetchEnv):
     :param kwargs: forwarded to ``MujocoFetchEnv`` (``render_mode``, ``width``, ``height``, ...).
     """
 
-    EVAL_HORIZON: ClassVar[int] = EVAL_HORIZON
-    HARD_RESET_EVERY: ClassVar[int] = HARD_RESET_EVERY
     #: Inner faces of the four walls (xy low corner, xy high corner) and their top height.
     wall_low: ClassVar[tuple[float, float]]
     wall_high: ClassVar[tuple[float, float]]

@@ -32,10 +32,6 @@ from gymnasium_robotics.core import GoalEnv
 
 from sb3_gcrl.envs.reset_free.reset_options import commanded_goal
 
-#: Evaluation episode length (steps), EARL / thesis Section 3.7.1.
-EVAL_HORIZON = 300
-#: Physical (hard) reset interval of reset-free training (EARL ``train_horizon`` for sawyer door).
-HARD_RESET_EVERY = 200_000
 #: EARL's success radius on the handle position (metres).
 SUCCESS_THRESHOLD = 0.02
 #: EARL's arm start and door placement (door base z from metaworld 3's asset, see the module docstring).
@@ -60,8 +56,6 @@ class SawyerDoorEnv(GoalEnv):
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array", "depth_array"], "render_fps": 80}
-    EVAL_HORIZON: ClassVar[int] = EVAL_HORIZON
-    HARD_RESET_EVERY: ClassVar[int] = HARD_RESET_EVERY
     #: success radius in goal space (the name gymnasium-robotics' goal envs use)
     distance_threshold: ClassVar[float] = SUCCESS_THRESHOLD
 

@@ -35,10 +35,6 @@ from gymnasium_robotics.core import GoalEnv
 
 from sb3_gcrl.envs.reset_free.reset_options import commanded_goal
 
-#: Evaluation episode length (steps), EARL / thesis Section 3.7.1.
-EVAL_HORIZON = 200
-#: Physical (hard) reset interval of reset-free training (EARL ``train_horizon`` for tabletop).
-HARD_RESET_EVERY = 200_000
 #: Success radius on (fist xy, mug xy).
 SUCCESS_THRESHOLD = 0.2
 
@@ -69,8 +65,6 @@ class TabletopEnv(GoalEnv):
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 20}
-    EVAL_HORIZON: ClassVar[int] = EVAL_HORIZON
-    HARD_RESET_EVERY: ClassVar[int] = HARD_RESET_EVERY
     #: success radius in goal space (the name gymnasium-robotics' goal envs use)
     distance_threshold: ClassVar[float] = SUCCESS_THRESHOLD
 
