@@ -66,10 +66,12 @@ def _reset_free_names() -> dict[str, tuple[str, str | None]]:
         names[f"reset_free_{task}_morefree_cpu"] = ("sac", None)
         names.update({f"reset_free_{task}_{method}": ("sac", method) for method in port})
         world_model = ["peg"] + (["wo_bf", "wo_imag"] if task in ablations else [])
-        for preset, file in (("cpu", "morefree"), ("thesis", "morefree_thesis")):
+        # CPU presets that were never measured are gone: their old names take the thesis's sections
+        cpu = "" if task in ("pointumaze", "tabletop") else "_thesis"
+        for preset, file in (("cpu", f"morefree{cpu}"), ("thesis", "morefree_thesis")):
             names[f"morefree_{task}_morefree_{preset}"] = (file, None)
             names.update({f"morefree_{task}_{method}_{preset}": (file, method) for method in world_model})
-        names[f"ibc_{task}_cpu"] = ("ibc", None)
+        names[f"ibc_{task}_cpu"] = (f"ibc{cpu}", None)
         names[f"ibc_{task}"] = ("ibc_thesis", None)
         names[f"r3l_{task}"] = ("r3l", None)
     names.update({"medal_pointumaze": ("medal", None), "medal_tabletop": ("medal", None)})
@@ -373,8 +375,26 @@ def resolve_config(
         sections = read_zoo_config(path)
         key = _section_key(sections, env_id, variant)
         if key is not None:
+            if config is None and path.stem.endswith(THESIS_SUFFIX):
+                _warn_thesis_scale_without_gpu(algo, env_id, path)
             return ResolvedConfig(path, key, env_id, variant, copy.deepcopy(dict(sections[key])))
     raise ConfigNotFoundError(_missing_section_message(algo, env_id, variant, candidates, config_dir))
+
+
+def _warn_thesis_scale_without_gpu(algo: str, env_id: str, path: Path) -> None:
+    """Warn when the default search falls back to a GPU-scale file (``<algo>_thesis.yml``) on a machine without CUDA:
+    ``<algo>.yml`` has no CPU preset for the env."""
+    import torch
+
+    if not torch.cuda.is_available():
+        warnings.warn(
+            f"{algo} on {env_id}: {algo}.yml has no CPU preset for this env, so the thesis's GPU-scale section of "
+            f"{path.name} is used, and this machine has no CUDA device: expect a very slow run (docs/results.md, "
+            f"'What each CPU preset reaches at its budget'). Shrink it with --hyperparams (e.g. to the network and "
+            f"batch sizes of a section of {algo}.yml) or pass -conf <your file>",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 def _missing_section_message(

@@ -9,9 +9,11 @@ import warnings
 from pathlib import Path
 
 import pytest
+import torch
 import yaml
 
 from sb3_gcrl.algorithms import ALGORITHMS
+from sb3_gcrl.envs.tasks import TASKS
 from sb3_gcrl.zoo_config import (
     OLD_CONFIG_NAMES,
     THESIS_SUFFIX,
@@ -41,10 +43,14 @@ def test_one_file_per_algorithm_and_the_thesis_scale_beside_it() -> None:
     names = {path.stem for path in FILES}
     assert set(ALGORITHMS) | set(STOCK) == {name.removesuffix(THESIS_SUFFIX) for name in names}
     assert {name for name in names if name.endswith(THESIS_SUFFIX)} == {"morefree_thesis", "ibc_thesis"}
-    for thesis in ("morefree", "ibc"):  # the same sections at the thesis's scale
-        assert read_zoo_config(ZOO_CONFIGS_DIR / f"{thesis}_thesis.yml").keys() == (
-            read_zoo_config(ZOO_CONFIGS_DIR / f"{thesis}.yml").keys()
-        )
+    for thesis in ("morefree", "ibc"):  # every section at the thesis's scale; CPU presets only where measured
+        thesis_keys = read_zoo_config(ZOO_CONFIGS_DIR / f"{thesis}_thesis.yml").keys()
+        cpu_keys = read_zoo_config(ZOO_CONFIGS_DIR / f"{thesis}.yml").keys()
+        assert cpu_keys < thesis_keys
+        assert {split_section_key(key)[0] for key in cpu_keys} == {"GCRL/PointUMazeGoal-v0", "GCRL/Tabletop-v0"}
+        assert {split_section_key(key)[0] for key in thesis_keys} == {
+            env_id for env_id, task in TASKS.items() if task.reset_free
+        }
 
 
 @pytest.mark.parametrize(("algo", "env_id"), DEFAULTS, ids=[f"{a}-{e}" for a, e in DEFAULTS])
@@ -79,7 +85,15 @@ def test_the_thesis_file_is_searched_after_the_default_then_rl_zoos_own(tmp_path
     (tmp_path / "algo_x.yml").write_text("A-v0: {n: 1}\n")
     (tmp_path / "algo_x_thesis.yml").write_text("A-v0: {n: 2}\nB-v0: {n: 3}\n")
     assert resolve_config("algo_x", "A-v0", config_dir=tmp_path).hyperparams == {"n": 1}
-    assert resolve_config("algo_x", "B-v0", config_dir=tmp_path).hyperparams == {"n": 3}
+    with warnings.catch_warnings(record=True) as caught:  # the GPU-scale file on a machine without CUDA says so
+        warnings.simplefilter("always")
+        assert resolve_config("algo_x", "B-v0", config_dir=tmp_path).hyperparams == {"n": 3}
+    assert [str(w.message) for w in caught if "no CPU preset" in str(w.message)] == (
+        [] if torch.cuda.is_available() else [str(caught[-1].message)]
+    )
+    with warnings.catch_warnings():  # a file named by the user: no warning
+        warnings.simplefilter("error")
+        resolve_config("algo_x", "B-v0", config="algo_x_thesis", config_dir=tmp_path)
     sac = resolve_config("sac", "Pendulum-v1", config_dir=tmp_path)  # stock algorithm, stock env: RL-Zoo's file
     assert sac.path.parent.name == "hyperparams" and sac.key == "Pendulum-v1"
     assert resolve_config("sac", "Pendulum-v1").path.parent.name == "hyperparams"
