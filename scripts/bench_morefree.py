@@ -27,6 +27,13 @@ besides the world model::
 
 ``--collect`` also times data collection (filtering, pi_G / pi_E actions, Back-and-Forth Go-Explore with PEG goals)
 of the CPU preset and prints what a 100k-step reset-free PointUMaze run costs at train ratio 2.
+
+``--profile N`` then profiles N more steps of each setting and step (``torch.profiler``, one thread) and prints where
+a step's CPU time goes: the parts of the step (world model; imagination of pi_G and pi_E; critics and distance; the
+backward passes with the optimizer steps), and by kind of work, matrix products against the compiled graphs' own
+fused kernels (elementwise work, reductions) and the rest::
+
+    python scripts/bench_morefree.py --settings cpu-full --variants eager compiled-bf16 --repeats 3 --profile 5
 """
 
 from __future__ import annotations
@@ -151,6 +158,41 @@ def time_steps(model: MoReFree, steps: int) -> tuple[float, float]:
     return (time.perf_counter() - wall) / steps, (time.process_time() - cpu) / steps
 
 
+#: the labelled parts of ``MoReFree.train`` (``torch.profiler.record_function``)
+PARTS = (
+    "morefree.world_model",
+    "morefree.world_model_backward",
+    "morefree.imagination",
+    "morefree.learners",
+    "morefree.imagination_backward",
+)
+#: matrix products (dense layers, the batched ensemble)
+MATRIX_PRODUCTS = ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm")
+
+
+def profile_steps(model: MoReFree, steps: int) -> dict[str, float]:
+    """CPU milliseconds per training step: each labelled part of the step, matrix products, the compiled graphs' own
+    kernels (``## Call CompiledFxGraph``, self time) and everything else, over ``steps`` profiled steps."""
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(steps):
+            model.train()
+    events = prof.key_averages()
+    total = sum(event.self_cpu_time_total for event in events)
+    per_step = {name: 0.0 for name in (*PARTS, "matrix products", "compiled kernels", "other", "total")}
+    for event in events:
+        if event.key in PARTS:
+            per_step[event.key] += event.cpu_time_total
+        if event.key in MATRIX_PRODUCTS:
+            per_step["matrix products"] += event.self_cpu_time_total
+        elif event.key.startswith("## Call CompiledFxGraph"):
+            per_step["compiled kernels"] += event.self_cpu_time_total
+    per_step["other"] = total - per_step["matrix products"] - per_step["compiled kernels"]
+    per_step["total"] = total
+    return {name: value / 1000 / steps for name, value in per_step.items()}
+
+
 def sheeprl_step(python: str, setting: str, steps: int) -> float | None:
     """sheeprl's DreamerV3 train steps/s at the sizes of ``setting`` (one repeat), or None if it failed."""
     network, algo, _ = SETTINGS[setting]
@@ -207,6 +249,7 @@ def main() -> None:
     parser.add_argument("--sheeprl-python", help="python of a venv with sheeprl 0.8.4 (the DreamerV3 reference)")
     parser.add_argument("--collect", action="store_true", help="also time data collection (CPU preset)")
     parser.add_argument("--before", help="a checkout of commit ec97e36, timed beside the 'before' setting")
+    parser.add_argument("--profile", type=int, default=0, help="then profile this many steps of each (0: none)")
     args = parser.parse_args()
     th.set_num_threads(1)
 
@@ -257,6 +300,15 @@ def main() -> None:
             before = float(np.median(rates["before"]))
             best = max(args.variants, key=lambda v: float(np.median(rates[v])))
             print(f"| {setting} | ratio {best} / before | {float(np.median(rates[best])) / before:.2f}x | | | |")
+        if args.profile:
+            profiles = {variant: profile_steps(model, args.profile) for variant, model in models.items()}
+            print(f"\n{setting}: CPU ms per training step ({args.profile} profiled steps, torch.profiler)\n")
+            print("| part of the step | " + " | ".join(profiles) + " |")
+            print("|---|" + "---|" * len(profiles))
+            for name in next(iter(profiles.values())):
+                label = name.removeprefix("morefree.").replace("_", " ")
+                print(f"| {label} | " + " | ".join(f"{p[name]:.1f}" for p in profiles.values()) + " |")
+            print("", flush=True)
     if args.collect:
         variant = args.variants[-1]
         env_rate = collection(3000, variant)

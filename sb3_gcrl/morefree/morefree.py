@@ -40,6 +40,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.utils import safe_mean
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
+from torch.profiler import record_function
 
 from sb3_gcrl.common.runs import warn_if_learning_never_starts
 from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
@@ -763,9 +764,10 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
         actions = th.as_tensor(actions_np, device=self.device)
         is_first = th.as_tensor(first_np, device=self.device)
 
-        with self._autocast():
+        with record_function("morefree.world_model"), self._autocast():
             model_loss, post, metrics = losses["_model_losses"](states, actions, is_first)
-        self._apply(model_loss, ("wm", "ensemble"))
+        with record_function("morefree.world_model_backward"):
+            self._apply(model_loss, ("wm", "ensemble"))
 
         start = post.flatten()
         groups = th.arange(self.batch_size, device=self.device).repeat(self.batch_length)
@@ -777,14 +779,15 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
         goals_np, _ = self.sample_imagination_goals(n_starts)
         goals = symlog(th.as_tensor(goals_np, device=self.device))
         replay_pairs = self._replay_pairs() if self.distance_on_replay else None
-        with frozen(policy.world_model, policy.distance, policy.ensemble), self._autocast():
+        frozen_models = frozen(policy.world_model, policy.distance, policy.ensemble)
+        with record_function("morefree.imagination"), frozen_models, self._autocast():
             actor_loss, imagined, actor_metrics = losses["_imagination_losses"](start, goals)
-        with self._autocast():
+        with record_function("morefree.learners"), self._autocast():
             learner_loss, learner_metrics = losses["_learner_losses"](imagined, goals, groups, replay_pairs)
         learners = ("actor_g", "critic_g", "actor_e", "critic_e", "distance")
-        self._apply(
-            actor_loss + learner_loss, learners, skip=("actor_g",) if self._n_updates < self.distance_warmup else ()
-        )
+        with record_function("morefree.imagination_backward"):
+            warming_up = self._n_updates < self.distance_warmup
+            self._apply(actor_loss + learner_loss, learners, skip=("actor_g",) if warming_up else ())
 
         self._n_updates += 1
         if self._n_updates % self.target_update_interval == 0:
