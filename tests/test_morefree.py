@@ -818,18 +818,16 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
 
 @pytest.mark.slow  # compiling the three loss functions takes a few minutes on a CPU
 def test_compiled_train_step_matches_the_eager_one():
-    """``compile_train_step`` changes the speed of a training step, not its result (inductor drawing its random
-    numbers as eager PyTorch does)."""
-    import torch._inductor.config as inductor_config
-
-    params = []
+    """``compile_train_step`` changes the speed of a training step, not its result: the compiled step draws its
+    random numbers from PyTorch's generator, as the plain one does."""
+    params, updates = [], []
     for compiled in (False, True):
         env = make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0)
         model = tiny(env, learning_starts=30, compile_train_step=compiled)
-        with inductor_config.patch(fallback_random=True):
-            model.learn(60)
+        model.learn(60)
         params.append(th.nn.utils.parameters_to_vector(model.policy.parameters()).detach())
-    assert model._n_updates == 4
+        updates.append(model._n_updates)
+    assert updates[0] == updates[1] >= 3
     th.testing.assert_close(params[0], params[1], rtol=1e-4, atol=1e-5)
 
 

@@ -101,8 +101,10 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
     :param peg_horizon: imagined steps of pi_G toward each candidate goal (``None``: the Go-phase length H_G of the
         env's Go/Explore wrapper, as PEG, else ``imagination_horizon``).
     :param compile_train_step: compile the step's loss computations with ``torch.compile`` (once per process, on the
-        first training step; minutes on a CPU, then about 2x faster there).
-    :param mixed_precision: bfloat16 matrix products (PEG's ``precision: 16``); distributions and losses in float32.
+        first training step; minutes on a CPU, then about 2x faster there). Random numbers come from PyTorch's
+        generator, as in the plain step, which the compiled step reproduces on fixed seeds.
+    :param mixed_precision: bfloat16 matrix products (PEG's ``precision: 16``); distributions and losses in float32,
+        and on a CPU the world model's filtering too (bfloat16 is slower there at its small products).
     :param n_threads: torch intra-op threads while learning (``None``: leave torch's setting, e.g. RL-Zoo's
         ``--num-threads``).
     :param policy_kwargs: keyword arguments of :class:`~sb3_gcrl.morefree.policies.MoReFreePolicy` (network sizes,
@@ -733,10 +735,15 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
         as_tensor = lambda x, dtype=None: th.as_tensor(x, dtype=dtype, device=self.device)  # noqa: E731
         return symlog(as_tensor(first)), symlog(as_tensor(later)), as_tensor(steps), as_tensor(valid, th.float32)
 
-    def _autocast(self) -> AbstractContextManager[Any]:
+    def _autocast(self, world_model: bool = False) -> AbstractContextManager[Any]:
         """bfloat16 matrix products (``torch.autocast``) with ``mixed_precision``, as PEG's ``precision: 16``; the
-        distributions, losses and the GRU's normalisation stay in float32."""
-        if not self.mixed_precision:
+        distributions, losses and the GRU's normalisation stay in float32.
+
+        :param world_model: for the world model's step (filtering the replayed sequences), which stays in float32 on
+            a CPU: its products are small (one per sequence step), and bfloat16's casts cost more there than they
+            save (``scripts/bench_morefree.py --profile``).
+        """
+        if not self.mixed_precision or (world_model and self.device.type == "cpu"):
             return nullcontext()
         return th.autocast(self.device.type, dtype=th.bfloat16)
 
@@ -747,7 +754,10 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
         if not self.compile_train_step:
             return {name: getattr(self, name) for name in names}
         if self._compiled is None:
-            self._compiled = {name: th.compile(getattr(self, name)) for name in names}
+            # fallback_random: random numbers come from PyTorch's own generator (as in the plain step) instead of
+            # inductor's in-kernel ones, which cost about 60 ns a sample on a CPU core
+            options = {"fallback_random": True}
+            self._compiled = {name: th.compile(getattr(self, name), options=options) for name in names}
         return self._compiled
 
     def train(self) -> None:
@@ -764,7 +774,7 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
         actions = th.as_tensor(actions_np, device=self.device)
         is_first = th.as_tensor(first_np, device=self.device)
 
-        with record_function("morefree.world_model"), self._autocast():
+        with record_function("morefree.world_model"), self._autocast(world_model=True):
             model_loss, post, metrics = losses["_model_losses"](states, actions, is_first)
         with record_function("morefree.world_model_backward"):
             self._apply(model_loss, ("wm", "ensemble"))
