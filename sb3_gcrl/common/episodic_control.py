@@ -32,6 +32,7 @@ from stable_baselines3.common.utils import LinearSchedule, safe_mean
 from sb3_gcrl.common.arguments import settings_among
 from sb3_gcrl.common.episodes import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.common.saving import ModelFileMixin
+from sb3_gcrl.common.seeding import generator_state, restore_generator
 from sb3_gcrl.common.validation import check_choice, check_finite_rewards, check_float, check_int, check_optional_int
 from sb3_gcrl.memory.embedding import KeyEmbedding
 from sb3_gcrl.memory.knn import KNN_BACKENDS, KNNBackend
@@ -194,12 +195,16 @@ class EpisodicControlPolicy(BasePolicy):
         return self._predict(obs, deterministic)
 
     def get_extra_state(self) -> dict[str, th.Tensor]:
-        """Memory rows and projection matrix, as tensors, for ``state_dict``/``policy.pth``."""
-        return memory_state(self.memory, self.embedding)
+        """Memory rows, projection matrix and the action-sampling generator's state, as tensors, for
+        ``state_dict``/``policy.pth``."""
+        return {**memory_state(self.memory, self.embedding), "rng": generator_state(self.rng)}
 
     def set_extra_state(self, state: dict[str, th.Tensor]) -> None:
-        """Restore what :meth:`get_extra_state` returned (see :func:`load_memory_state`)."""
+        """Restore what :meth:`get_extra_state` returned (see :func:`load_memory_state`); the action-sampling
+        generator continues where the saved one stopped (files saved before it was kept: reseeded as built)."""
         load_memory_state(self, self.memory, self.embedding, state)
+        if "rng" in state:
+            self.rng = restore_generator(state["rng"])
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()

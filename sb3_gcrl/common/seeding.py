@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import json
 import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -113,10 +115,18 @@ class SeededGeneratorMixin:
         """
         self._rng = seeded_generator(seed)
 
-    def _setup_model(self) -> None:
+    @contextmanager
+    def _continuing_saved_generator(self) -> Iterator[None]:
+        """Around an algorithm's set-up: a generator that ``load`` restored before the set-up (the saved model's) is
+        kept over the one the set-up seeds; without a seed, fresh entropy. An algorithm whose ``_setup_model`` does
+        not call ``super()._setup_model()`` runs its set-up inside this context itself."""
         restored = self.__dict__.pop("_rng", None)  # only ``load`` sets it before the set-up: continue it
-        super()._setup_model()  # type: ignore[misc]  (seeds ``_rng`` when the model has a seed)
+        yield
         if restored is not None:
             self._rng = restored
         elif "_rng" not in self.__dict__:
             self._seed_generators(None)
+
+    def _setup_model(self) -> None:
+        with self._continuing_saved_generator():
+            super()._setup_model()  # type: ignore[misc]  (seeds ``_rng`` when the model has a seed)

@@ -30,6 +30,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_gcrl.common.metrics import coverage, visitation_entropy
 from sb3_gcrl.common.saving import ModelFileMixin
+from sb3_gcrl.common.seeding import SeededGeneratorMixin
 from sb3_gcrl.common.validation import check_bool, check_float, check_unit_interval
 from sb3_gcrl.goals.goal_space import BinnedGoalSpace
 from sb3_gcrl.imgep.policies import TabularGoalPolicy
@@ -41,7 +42,7 @@ from sb3_gcrl.post_exploration.rules import PostExplorationRule, ProportionalSte
 SelfTabularIMGEP = TypeVar("SelfTabularIMGEP", bound="TabularIMGEP")
 
 
-class TabularIMGEP(ModelFileMixin, BaseAlgorithm, GoalExplorationAgent):
+class TabularIMGEP(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm, GoalExplorationAgent):
     """Goal-conditioned tabular Q-learning in an IMGEP loop, with optional post-exploration (Algorithm 3).
 
     The agent keeps its goal space and visit counts itself, so it implements
@@ -161,12 +162,8 @@ class TabularIMGEP(ModelFileMixin, BaseAlgorithm, GoalExplorationAgent):
 
     def _setup_model(self) -> None:
         self._setup_lr_schedule()
-        saved_rng = self.__dict__.pop("_rng", None)  # restored by ``load``: continue where the saved model stopped
-        self.set_random_seed(self.seed)
-        if saved_rng is not None:
-            self._rng = saved_rng
-        elif not hasattr(self, "_rng"):  # no seed: fresh entropy
-            self._rng = np.random.default_rng()
+        with self._continuing_saved_generator():  # a loaded model continues the saved one's draws
+            self.set_random_seed(self.seed)
         self.policy = self.policy_class(  # type: ignore[assignment]
             self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
         )
@@ -186,15 +183,6 @@ class TabularIMGEP(ModelFileMixin, BaseAlgorithm, GoalExplorationAgent):
             self._n_episodes = 0
             self._n_reached = 0
             self._n_post_exploration_steps = 0
-
-    def set_random_seed(self, seed: int | None = None) -> None:
-        """Seed SB3's generators (python, numpy, torch, env, action space) and the agent's own generator.
-
-        :param seed: the seed; None leaves every generator as it is (as in SB3).
-        """
-        super().set_random_seed(seed)
-        if seed is not None:
-            self._rng = np.random.default_rng(seed)
 
     def set_env(self, env: GymEnv | str, force_reset: bool = True) -> None:  # type: ignore[override]
         """The env to learn in: a plain tabular env (or id) is wrapped in a :class:`TabularGoalEnv` as in ``__init__``.

@@ -44,6 +44,7 @@ from torch.profiler import record_function
 
 from sb3_gcrl.common.runs import warn_if_learning_never_starts
 from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
+from sb3_gcrl.common.seeding import SeededGeneratorMixin
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
 from sb3_gcrl.morefree.networks import LatentState, frozen, lambda_returns, symlog
@@ -56,7 +57,7 @@ SelfMoReFree = TypeVar("SelfMoReFree", bound="MoReFree")
 DEFAULT_ALPHA = 0.2
 
 
-class MoReFree(ModelFileMixin, BaseAlgorithm):
+class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
     """Model-based reset-free goal-conditioned agent (MoReFree, thesis Ch. 3), PEG's state-input agent.
 
     Defaults are PEG's point-maze settings (the thesis preset); the CPU presets are the sections
@@ -234,14 +235,14 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
             raise ValueError(f"n_threads must be >= 1 or None, got {n_threads!r}")
         self.n_threads = n_threads
         self._n_updates = 0
-        self._rng = np.random.default_rng(seed)
         if _init_setup_model:
             self._setup_model()
 
     # --- setup ------------------------------------------------------------------------------------------------
     def _setup_model(self) -> None:
         self._setup_lr_schedule()
-        self.set_random_seed(self.seed)
+        with self._continuing_saved_generator():
+            self.set_random_seed(self.seed)
         self.policy = self.policy_class(  # type: ignore[assignment]
             self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
         )
@@ -275,12 +276,6 @@ class MoReFree(ModelFileMixin, BaseAlgorithm):
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", *(f"policy.{name}_optimizer" for name in MoReFreePolicy.OPTIMIZERS)], []
-
-    def set_random_seed(self, seed: int | None = None) -> None:
-        """Seed python, numpy, torch, the action space and the agent's own generator (replay sampling)."""
-        super().set_random_seed(seed)
-        if seed is not None:
-            self._rng = np.random.default_rng(seed)
 
     def save_replay_buffer(self, path: str) -> None:
         """Pickle the sequence replay buffer, atomically (a trusted file only can be loaded back)."""
