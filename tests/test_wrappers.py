@@ -582,14 +582,15 @@ def test_reset_free_wrapper_alone_reports_its_segments_and_true_terminals(tmp_pa
     assert list(load_results(str(tmp_path)).l) == [3, 2]
 
 
-def test_reset_free_envs_doc_example_runs_and_states_eval_horizon_once() -> None:
-    """docs/reset_free_envs.md's example: GoExploreWrapper reads T_eval from the ResetFreeWrapper below it."""
+def test_reset_free_envs_doc_example_runs_and_states_no_horizon() -> None:
+    """docs/reset_free_envs.md's example: ResetFreeWrapper takes T_eval from the task table, GoExploreWrapper reads it
+    from the ResetFreeWrapper below it."""
     import re
     from pathlib import Path
 
     doc = (Path(__file__).resolve().parents[1] / "docs" / "reset_free_envs.md").read_text()
     code = "\n".join(re.findall(r"```python\n(.*?)```", doc, flags=re.S))
-    assert code.count("eval_horizon=") == 1  # stated once, to ResetFreeWrapper
+    assert "eval_horizon=" not in code and "hard_reset_every=" not in code  # the task table's
     namespace: dict[str, Any] = {}
     exec(compile(code, "reset_free_envs.md", "exec"), namespace)  # noqa: S102 (the doc's own example)
     env = namespace["env"]
