@@ -39,6 +39,12 @@ def test_success_threshold_is_the_envs_own(env_id: str) -> None:
     env.close()
 
 
+def test_tasks_are_hashable_values() -> None:
+    assert len(set(TASKS.values())) == len(TASKS)
+    with pytest.raises(AttributeError):
+        TASKS["GCRL/Tabletop-v0"].eval_horizon = 1  # type: ignore[misc]
+
+
 def test_horizons() -> None:
     maze, umaze_goal = TASKS["GCRL/PointUMaze-v0"], TASKS["GCRL/PointUMazeGoal-v0"]
     assert not maze.reset_free and maze.train_horizon == maze.eval_horizon == 1000

@@ -54,7 +54,7 @@ class Task:
     entry_point: str
     eval_horizon: int | None
     source: str
-    kwargs: dict[str, Any] = field(default_factory=dict)
+    kwargs: dict[str, Any] = field(default_factory=dict, hash=False)  # a task stays hashable
     hard_reset_every: int | None = None
     goal_low: tuple[float, ...] | None = None
     goal_high: tuple[float, ...] | None = None
