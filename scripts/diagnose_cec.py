@@ -12,9 +12,11 @@ a table of probes, each beside the quantity it must be compared with:
   random);
 * the greedy policy's success and episode length.
 
-Nothing is tuned here: the probes read the shipped settings. Example (about 2 min on one core)::
+Nothing is tuned here: the probes read the shipped settings. ``--normalize`` builds the keys from observations
+standardised per dimension (SB3's ``VecNormalize``), to see whether the scale of the raw sensors is what sets the key
+distance. Example (10-20 s on one core)::
 
-    python scripts/diagnose_cec.py --env GCRL/PointGoal-v0 --steps 20000 --seed 0
+    python scripts/diagnose_cec.py --env GCRL/PointGoal-v0 --steps 20000 --seed 0 [--normalize]
 """
 
 from __future__ import annotations
@@ -26,34 +28,47 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch as th
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import VecNormalize
 
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl import CEC
 from sb3_gcrl.zoo_config import resolve_config
 
 
-def build(env_id: str, seed: int) -> CEC:
-    """CEC with the env's shipped section (budget and policy name left to the caller)."""
+def build(env_id: str, seed: int, normalize: bool) -> CEC:
+    """CEC with the env's shipped section (budget and policy name left to the caller); with ``normalize``, on
+    observations standardised by SB3's ``VecNormalize`` (running mean and std per dimension, as RL-Zoo's
+    ``normalize`` setting), so that every key dimension moves on the same scale."""
     section = dict(resolve_config("cec", env_id).hyperparams)
     section.pop("n_timesteps", None)
     policy = section.pop("policy", "CECPolicy")
-    return CEC(policy, env_id, seed=seed, **section)
+    env = make_vec_env(env_id, n_envs=1, seed=seed)
+    if normalize:
+        env = VecNormalize(env, norm_obs=True, norm_reward=False)
+    return CEC(policy, env, seed=seed, **section)
 
 
 def greedy_episodes(model: CEC, env_id: str, episodes: int, seed: int) -> tuple[list[np.ndarray], list[bool]]:
     """Keys of the states of ``episodes`` greedy episodes, and whether each reached the goal."""
     env = gym.make(env_id)
+    normalizer = model.get_vec_normalize_env()
+    if normalizer is not None:
+        normalizer.training = False  # evaluation: the statistics stay as trained
     keys, successes = [], []
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + 1000 + episode)
         trajectory = [obs]
         done = False
         while not done:
-            action, _ = model.predict(obs, deterministic=True)
+            action, _ = model.predict(obs if normalizer is None else normalizer.normalize_obs(obs), deterministic=True)
             obs, _, terminated, truncated, info = env.step(action)
             trajectory.append(obs)
             done = terminated or truncated
-        keys.append(model.policy.embedding(np.stack(trajectory)))
+        observations = np.stack(trajectory)
+        if normalizer is not None:
+            observations = normalizer.normalize_obs(observations)
+        keys.append(model.policy.embedding(observations))
         successes.append(bool(info.get("is_success", False)))
     env.close()
     return keys, successes
@@ -97,13 +112,17 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=5, help="greedy evaluation episodes probed")
+    parser.add_argument("--normalize", action="store_true", help="keys from standardised observations (VecNormalize)")
     args = parser.parse_args()
     th.set_num_threads(1)
     start = time.perf_counter()
-    model = build(args.env, args.seed)
+    model = build(args.env, args.seed, args.normalize)
     model.learn(args.steps)
     table = probes(model, args.env, args.steps, args.episodes, args.seed)
-    print(f"CEC on {args.env}, seed {args.seed}, {args.steps} env steps ({time.perf_counter() - start:.0f} s)\n")
+    keys = "standardised observations" if args.normalize else "raw observations"
+    print(
+        f"CEC on {args.env} ({keys}), seed {args.seed}, {args.steps} env steps ({time.perf_counter() - start:.0f} s)\n"
+    )
     print("| probe | value |\n|---|---|")
     for name, value in table.items():
         print(f"| {name} | {value} |")
