@@ -22,6 +22,7 @@ distance. Example (10-20 s on one core)::
 from __future__ import annotations
 
 import argparse
+import ast
 import time
 from typing import Any
 
@@ -36,11 +37,11 @@ from sb3_gcrl import CEC
 from sb3_gcrl.zoo_config import resolve_config
 
 
-def build(env_id: str, seed: int, normalize: bool) -> CEC:
+def build(env_id: str, seed: int, normalize: bool, overrides: dict[str, Any] | None = None) -> CEC:
     """CEC with the env's shipped section (budget and policy name left to the caller); with ``normalize``, on
     observations standardised by SB3's ``VecNormalize`` (running mean and std per dimension, as RL-Zoo's
     ``normalize`` setting), so that every key dimension moves on the same scale."""
-    section = dict(resolve_config("cec", env_id).hyperparams)
+    section = {**resolve_config("cec", env_id).hyperparams, **(overrides or {})}
     section.pop("n_timesteps", None)
     policy = section.pop("policy", "CECPolicy")
     env = make_vec_env(env_id, n_envs=1, seed=seed)
@@ -113,13 +114,25 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=5, help="greedy evaluation episodes probed")
     parser.add_argument("--normalize", action="store_true", help="keys from standardised observations (VecNormalize)")
+    parser.add_argument(
+        "--hyperparams",
+        nargs="*",
+        default=[],
+        metavar="KEY:VALUE",
+        help="settings over the shipped section, e.g. projection_dim:None (a probe of the key, not a tuning run)",
+    )
     args = parser.parse_args()
     th.set_num_threads(1)
+    overrides = {}
+    for item in args.hyperparams:
+        key, _, value = item.partition(":")
+        overrides[key] = ast.literal_eval(value)
     start = time.perf_counter()
-    model = build(args.env, args.seed, args.normalize)
+    model = build(args.env, args.seed, args.normalize, overrides)
     model.learn(args.steps)
     table = probes(model, args.env, args.steps, args.episodes, args.seed)
     keys = "standardised observations" if args.normalize else "raw observations"
+    keys += "".join(f", {key}={value!r}" for key, value in overrides.items())
     print(
         f"CEC on {args.env} ({keys}), seed {args.seed}, {args.steps} env steps ({time.perf_counter() - start:.0f} s)\n"
     )
