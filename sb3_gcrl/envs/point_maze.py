@@ -71,6 +71,8 @@ U_MAZE_MAP: list[list[int]] = [
     [1, 0, 0, 0, 1],
     [1, 1, 1, 1, 1],
 ]
+#: success radius around the goal (gymnasium-robotics' PointMaze)
+SUCCESS_RADIUS = 0.45
 U_MAZE_START_CELL = (3, 1)  # bottom-left
 U_MAZE_GOAL_CELL = (1, 1)  # top-left of the U
 
@@ -128,7 +130,7 @@ class PointMazeTaskEnv(gym.Env):
         goal_cell: tuple[int, int] = U_MAZE_GOAL_CELL,
         start_noise: float = 0.1,
         goal_noise: float = 0.1,
-        distance_threshold: float = 0.45,
+        distance_threshold: float = SUCCESS_RADIUS,
         terminate_at_goal: bool = True,
         subgoal_cells: Sequence[tuple[int, int]] | None = None,
         subgoal_reward: float = 0.5,

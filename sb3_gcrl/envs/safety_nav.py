@@ -59,6 +59,8 @@ from gymnasium import spaces
 from sb3_gcrl.common.validation import check_choice
 
 _RESET_OPTIONS = ("reset_pos", "goal", "heading")
+#: radius of the goal zone (Safety-Gym's Goal task)
+GOAL_SIZE = 0.3
 
 # Shared scene: an (infinite) floor plane, a visual goal zone (no collisions), an overhead camera.
 _SCENE = """
@@ -153,7 +155,7 @@ _CAR = {
 _ROBOTS = {"point": _POINT, "car": _CAR}
 
 
-def robot_xml(robot: str, goal_size: float = 0.3, width: int = 480, height: int = 480) -> str:
+def robot_xml(robot: str, goal_size: float = GOAL_SIZE, width: int = 480, height: int = 480) -> str:
     """The MJCF model of the scene with Safety-Gym's ``"point"`` or ``"car"`` robot.
 
     :param robot: ``"point"`` or ``"car"``.
@@ -229,7 +231,7 @@ class SafetyGoalEnv(gym.Env):
         goal_noise: float = 0.1,
         heading: float = 0.0,
         heading_noise: float = math.pi,
-        goal_size: float = 0.3,
+        goal_size: float = GOAL_SIZE,
         lidar_num_bins: int = 12,
         lidar_max_dist: float = 3.0,
         frame_skip: int = 10,

@@ -26,7 +26,9 @@ from sb3_gcrl.envs.point_maze import (
     FOUR_ROOMS_MAP,
     FOUR_ROOMS_START_CELL,
     FOUR_ROOMS_SUBGOAL_CELLS,
+    SUCCESS_RADIUS,
 )
+from sb3_gcrl.envs.safety_nav import GOAL_SIZE
 
 
 @dataclass(frozen=True)
@@ -77,10 +79,6 @@ _FOUR_ROOMS = {"maze_map": FOUR_ROOMS_MAP, "start_cell": FOUR_ROOMS_START_CELL, 
 _MAZE = "sb3_gcrl.envs.point_maze"
 _MINIGRID = "sb3_gcrl.envs.minigrid_tabular:make_tabular_minigrid"
 _FETCH = "sb3_gcrl.envs.reset_free.fetch"
-#: PointMaze's success radius (gymnasium-robotics'), the point-maze tasks' ``distance_threshold``
-_MAZE_RADIUS = 0.45
-#: Safety-Gym's goal zone radius, the PointGoal/CarGoal tasks' ``goal_size``
-_SAFETY_GOAL_RADIUS = 0.3
 #: EARL's hard-reset interval (Tabletop, Sawyer Door, IBC PointUMaze, Ant; the default for an env of your own);
 #: IBC's Fetch tasks reset every 1e5
 EARL_HARD_RESET_EVERY = 200_000
@@ -100,7 +98,7 @@ TASKS: dict[str, Task] = {
             "Ch. 4, Fig. 4.4",
         ),
         Task(
-            "GCRL/PointUMaze-v0", f"{_MAZE}:PointMazeTaskEnv", 1000, "Ch. 4, Fig. 4.3", success_threshold=_MAZE_RADIUS
+            "GCRL/PointUMaze-v0", f"{_MAZE}:PointMazeTaskEnv", 1000, "Ch. 4, Fig. 4.3", success_threshold=SUCCESS_RADIUS
         ),
         Task(
             "GCRL/Point4Rooms-v0",
@@ -108,7 +106,7 @@ TASKS: dict[str, Task] = {
             1000,
             "Ch. 4, Fig. 4.3",
             kwargs=_FOUR_ROOMS,
-            success_threshold=_MAZE_RADIUS,
+            success_threshold=SUCCESS_RADIUS,
         ),
         Task(
             "GCRL/Point4RoomsSubgoals-v0",
@@ -116,7 +114,7 @@ TASKS: dict[str, Task] = {
             1000,
             "Ch. 4, Fig. 4.3 (mujoco_maze SubGoal4Rooms)",
             kwargs={**_FOUR_ROOMS, "subgoal_cells": FOUR_ROOMS_SUBGOAL_CELLS},
-            success_threshold=_MAZE_RADIUS,
+            success_threshold=SUCCESS_RADIUS,
         ),
         # 300 steps, not IBC's 100: IBC's maze is larger-scale; a waypoint controller needs ~160 steps in ours
         Task(
@@ -127,7 +125,7 @@ TASKS: dict[str, Task] = {
             hard_reset_every=EARL_HARD_RESET_EVERY,
             goal_low=(-1.5, -1.5),  # the U's free cells (cell size 1, walls from +-1.5 outwards)
             goal_high=(1.5, 1.5),
-            success_threshold=_MAZE_RADIUS,
+            success_threshold=SUCCESS_RADIUS,
         ),
         Task(
             "GCRL/Point4RoomsGoal-v0",
@@ -135,7 +133,7 @@ TASKS: dict[str, Task] = {
             600,
             "Ch. 4 (goal variant)",
             kwargs=_FOUR_ROOMS,
-            success_threshold=_MAZE_RADIUS,
+            success_threshold=SUCCESS_RADIUS,
         ),
         # Safety-Gym's Goal0 level with the Point / Car robot (1000 steps as Safety-Gym)
         Task(
@@ -143,14 +141,14 @@ TASKS: dict[str, Task] = {
             "sb3_gcrl.envs.safety_nav:PointGoalEnv",
             1000,
             "Ch. 4, Fig. 4.3, Tab. 4.2 (Safexp-PointGoal)",
-            success_threshold=_SAFETY_GOAL_RADIUS,
+            success_threshold=GOAL_SIZE,
         ),
         Task(
             "GCRL/CarGoal-v0",
             "sb3_gcrl.envs.safety_nav:CarGoalEnv",
             1000,
             "Ch. 4, Fig. 4.3, Tab. 4.2 (Safexp-CarGoal)",
-            success_threshold=_SAFETY_GOAL_RADIUS,
+            success_threshold=GOAL_SIZE,
         ),
         # MiniGrid truncates at its own max_steps (FourRooms 100, LavaCrossingS9N1 324, LavaGapS7 196)
         Task(

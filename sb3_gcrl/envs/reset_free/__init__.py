@@ -30,12 +30,12 @@ from __future__ import annotations
 import warnings
 from typing import Any
 
-#: deprecated name -> what replaces it in :mod:`sb3_gcrl.envs.tasks`
+#: deprecated name -> (the name in :mod:`sb3_gcrl.envs.tasks`, what to use instead)
 _DEPRECATED = {
-    "RESET_FREE_TASKS": "TASKS (the reset-free tasks are those with task.reset_free)",
-    "RESET_FREE_ENV_IDS": "RESET_FREE_ENV_IDS",
-    "ResetFreeTask": "Task",
-    "register_reset_free_envs": "register_tasks",
+    "RESET_FREE_TASKS": ("TASKS", "TASKS (the reset-free tasks are those with task.reset_free)"),
+    "RESET_FREE_ENV_IDS": ("RESET_FREE_ENV_IDS", "RESET_FREE_ENV_IDS"),
+    "ResetFreeTask": ("Task", "Task"),
+    "register_reset_free_envs": ("register_tasks", "register_tasks"),
 }
 
 
@@ -44,14 +44,15 @@ def __getattr__(name: str) -> Any:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     import sb3_gcrl.envs.tasks as tasks  # the table imports this package's env modules: import it when asked
 
+    target, replacement = _DEPRECATED[name]
     warnings.warn(
-        f"sb3_gcrl.envs.reset_free.{name} is deprecated: use sb3_gcrl.envs.tasks.{_DEPRECATED[name]}",
+        f"sb3_gcrl.envs.reset_free.{name} is deprecated: use sb3_gcrl.envs.tasks.{replacement}",
         DeprecationWarning,
         stacklevel=2,
     )
     if name == "RESET_FREE_TASKS":
         return {env_id: task for env_id, task in tasks.TASKS.items() if task.reset_free}
-    return getattr(tasks, {"ResetFreeTask": "Task", "register_reset_free_envs": "register_tasks"}.get(name, name))
+    return getattr(tasks, target)
 
 
 __all__: list[str] = []
