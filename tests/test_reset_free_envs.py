@@ -253,7 +253,8 @@ def test_ant_arena_is_an_open_square_with_walls():
     env.close()
 
 
-def test_ant_leaves_no_temporary_xml():
+def test_ant_leaves_no_temporary_xml(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # this process's own temp dir: no other worker's files
     pattern = os.path.join(tempfile.gettempdir(), "ant_maze*.xml")
     before = set(glob.glob(pattern))
     env = ant_module.AntArenaEnv()
