@@ -12,6 +12,7 @@ the same sections at that scale. :func:`resolve_config` is the one lookup of ``s
 
 from __future__ import annotations
 
+import ast
 import copy
 import difflib
 import hashlib
@@ -108,6 +109,26 @@ OLD_CONFIG_NAMES: dict[str, tuple[str, str | None]] = {**_reset_free_names(), **
 class ConfigNotFoundError(ValueError):
     """No config file, or no section of one, for an algorithm, env and variant; the message names the files searched,
     the envs they cover and the variants of the env."""
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """One ``key:value`` override of the command line (``--hyperparams``, ``--env-kwargs``).
+
+    The value is read as a Python literal first, as RL-Zoo's ``-params`` reads it (``None``, ``1e5``, ``[64, 64]``,
+    ``'auto'``), and as YAML otherwise (``null``, ``{net_arch: [64]}``, a bare word such as ``MlpPolicy``; an
+    expression such as ``dict(net_arch=[64])`` stays a string, which RL-Zoo evaluates for ``policy_kwargs``).
+
+    :param text: ``key:value``; the value may contain further colons.
+    :return: the key and the parsed value.
+    :raises ValueError: without a colon or without a key.
+    """
+    key, sep, value = text.partition(":")
+    if not sep or not key:
+        raise ValueError(f"expected key:value (e.g. learning_starts:100), got {text!r}")
+    try:
+        return key, ast.literal_eval(value)
+    except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
+        return key, yaml.safe_load(value)
 
 
 def section_key(env_id: str, variant: str | None = None) -> str:

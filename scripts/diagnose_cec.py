@@ -22,7 +22,6 @@ distance. Example (10-20 s on one core)::
 from __future__ import annotations
 
 import argparse
-import ast
 import time
 from typing import Any
 
@@ -34,7 +33,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl import CEC
-from sb3_gcrl.zoo_config import resolve_config
+from sb3_gcrl.zoo_config import parse_override, resolve_config
 
 
 def build(env_id: str, seed: int, normalize: bool, overrides: dict[str, Any] | None = None) -> CEC:
@@ -123,10 +122,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     th.set_num_threads(1)
-    overrides = {}
-    for item in args.hyperparams:
-        key, _, value = item.partition(":")
-        overrides[key] = ast.literal_eval(value)
+    overrides = dict(parse_override(item) for item in args.hyperparams)
     start = time.perf_counter()
     model = build(args.env, args.seed, args.normalize, overrides)
     model.learn(args.steps)

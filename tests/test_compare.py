@@ -24,7 +24,7 @@ from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_gcrl.cli import ZOO_CONFIGS_DIR
 from sb3_gcrl.compare import PRESETS, EvaluationRecorder, LocalProcessBackend, compare, parse_method
-from sb3_gcrl.compare.cli import EXIT_USAGE
+from sb3_gcrl.compare.cli import EXIT_USAGE, build_parser
 from sb3_gcrl.compare.cli import main as compare_main
 from sb3_gcrl.compare.methods import check_env_id
 from sb3_gcrl.compare.report import summarize, write_outputs
@@ -779,3 +779,11 @@ def test_written_files_honour_the_umask_like_open(tmp_path: Path, umask: int) ->
     assert stat.S_IMODE((tmp_path / "report.md").stat().st_mode) == 0o666 & ~umask  # 0o644 under 0o022
     assert stat.S_IMODE(existing.stat().st_mode) == 0o600 and existing.read_text() == "replaced\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report.md", "scores.csv"]  # no temporary file left
+
+
+def test_command_line_overrides_read_as_rl_zoo_writes_them() -> None:
+    args = build_parser().parse_args(["--hyperparams", "projection_dim:None", "--env-kwargs", "heading_noise:0.1"])
+    assert args.hyperparams == [("projection_dim", None)]
+    assert args.env_kwargs == [("heading_noise", 0.1)]
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["--hyperparams", "learning_rate"])

@@ -20,6 +20,7 @@ from sb3_gcrl.zoo_config import (
     ZOO_CONFIGS_DIR,
     ConfigNotFoundError,
     config_sections,
+    parse_override,
     read_zoo_config,
     resolve_config,
     split_section_key,
@@ -303,3 +304,27 @@ def test_plain_rl_zoo3_train_reads_the_env_section_of_an_algorithm_file(tmp_path
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     saved = tmp_path / "sac" / "GCRL-PointUMazeGoal-v0_1" / "GCRL-PointUMazeGoal-v0" / "config.yml"
     assert "TaskRelevantHerReplayBuffer" in saved.read_text()  # the port's own buffer: its default section
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("projection_dim:None", ("projection_dim", None)),  # RL-Zoo's -params spelling, not the string "None"
+        ("n_timesteps:1e5", ("n_timesteps", 100_000.0)),  # YAML 1.1 would keep "1e5" a string
+        ("goal:(1.0, 0.5)", ("goal", (1.0, 0.5))),
+        ("net_arch:[64, 64]", ("net_arch", [64, 64])),
+        ("policy:MlpPolicy", ("policy", "MlpPolicy")),  # a bare word: YAML
+        ("projection_dim:null", ("projection_dim", None)),
+        ("policy_kwargs:{net_arch: [64]}", ("policy_kwargs", {"net_arch": [64]})),
+        ("policy_kwargs:dict(net_arch=[64])", ("policy_kwargs", "dict(net_arch=[64])")),  # RL-Zoo evaluates it
+        ("url:http://host:80", ("url", "http://host:80")),
+    ],
+)
+def test_an_override_reads_python_literals_then_yaml(text: str, expected: tuple) -> None:
+    assert parse_override(text) == expected
+
+
+@pytest.mark.parametrize("text", ["learning_rate", ":0.1"])
+def test_an_override_without_key_or_colon_is_refused(text: str) -> None:
+    with pytest.raises(ValueError, match="expected key:value"):
+        parse_override(text)

@@ -11,17 +11,17 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import yaml
+from sb3_gcrl.zoo_config import parse_override
 
 #: exit codes
 EXIT_OK, EXIT_RUNS_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 def _hyperparam(text: str) -> tuple[str, Any]:
-    key, sep, value = text.partition(":")
-    if not sep or not key:
-        raise argparse.ArgumentTypeError(f"expected key:value (e.g. learning_starts:100), got {text!r}")
-    return key, yaml.safe_load(value)
+    try:
+        return parse_override(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,11 +57,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--ray-address", help="Ray cluster address (default: start a local Ray instance)")
     parser.add_argument(
         "--hyperparams", nargs="+", type=_hyperparam, default=[], metavar="KEY:VALUE",
-        help="overrides for every method, values in YAML (learning_starts:100 'policy_kwargs:dict(net_arch=[64])')",
+        help="overrides for every method, values as Python literals or YAML (learning_starts:100 projection_dim:None "
+        "'policy_kwargs:dict(net_arch=[64])')",
     )  # fmt: skip
     parser.add_argument(
         "--env-kwargs", nargs="+", type=_hyperparam, default=[], metavar="KEY:VALUE",
-        help="env constructor arguments for every env, values in YAML (sticky_action_prob:0.2)",
+        help="env constructor arguments for every env, values as --hyperparams (sticky_action_prob:0.2)",
     )  # fmt: skip
     parser.add_argument("--gym-packages", nargs="+", default=[], help="modules to import (register extra envs)")
     parser.add_argument("--config-dir", type=Path, help="folder of zoo configs for bare method names")
