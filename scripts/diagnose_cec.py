@@ -16,7 +16,8 @@ Nothing is tuned here: the probes read the shipped settings. ``--normalize`` bui
 standardised per dimension (SB3's ``VecNormalize``), to see whether the scale of the raw sensors is what sets the key
 distance. Example (10-20 s on one core)::
 
-    python scripts/diagnose_cec.py --env GCRL/PointGoal-v0 --steps 20000 --seed 0 [--normalize]
+    python scripts/diagnose_cec.py --env GCRL/PointGoal-v0 --steps 20000 --seed 0 [--normalize] \
+        [--hyperparams projection_dim:None] [--env-kwargs heading_noise:0.1]
 """
 
 from __future__ import annotations
@@ -36,22 +37,30 @@ from sb3_gcrl import CEC
 from sb3_gcrl.zoo_config import parse_override, resolve_config
 
 
-def build(env_id: str, seed: int, normalize: bool, overrides: dict[str, Any] | None = None) -> CEC:
+def build(
+    env_id: str,
+    seed: int,
+    normalize: bool,
+    overrides: dict[str, Any] | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+) -> CEC:
     """CEC with the env's shipped section (budget and policy name left to the caller); with ``normalize``, on
     observations standardised by SB3's ``VecNormalize`` (running mean and std per dimension, as RL-Zoo's
-    ``normalize`` setting), so that every key dimension moves on the same scale."""
+    ``normalize`` setting), so that every key dimension moves on the same scale; ``env_kwargs`` go to the env."""
     section = {**resolve_config("cec", env_id).hyperparams, **(overrides or {})}
     section.pop("n_timesteps", None)
     policy = section.pop("policy", "CECPolicy")
-    env = make_vec_env(env_id, n_envs=1, seed=seed)
+    env = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=env_kwargs)
     if normalize:
         env = VecNormalize(env, norm_obs=True, norm_reward=False)
     return CEC(policy, env, seed=seed, **section)
 
 
-def greedy_episodes(model: CEC, env_id: str, episodes: int, seed: int) -> tuple[list[np.ndarray], list[bool]]:
+def greedy_episodes(
+    model: CEC, env_id: str, episodes: int, seed: int, env_kwargs: dict[str, Any] | None = None
+) -> tuple[list[np.ndarray], list[bool]]:
     """Keys of the states of ``episodes`` greedy episodes, and whether each reached the goal."""
-    env = gym.make(env_id)
+    env = gym.make(env_id, **(env_kwargs or {}))
     normalizer = model.get_vec_normalize_env()
     if normalizer is not None:
         normalizer.training = False  # evaluation: the statistics stay as trained
@@ -79,11 +88,13 @@ def percentiles(values: np.ndarray) -> str:
     return f"{p10:.3g} / {p50:.3g} / {p90:.3g}"
 
 
-def probes(model: CEC, env_id: str, steps: int, episodes: int, seed: int) -> dict[str, Any]:
+def probes(
+    model: CEC, env_id: str, steps: int, episodes: int, seed: int, env_kwargs: dict[str, Any] | None = None
+) -> dict[str, Any]:
     memory = model.policy.memory
     d, n = memory.distance_threshold, memory.filter_factor
     values = memory.values[: len(memory)]
-    keys, successes = greedy_episodes(model, env_id, episodes, seed)
+    keys, successes = greedy_episodes(model, env_id, episodes, seed, env_kwargs)
     visited = np.concatenate(keys)
     nearest, _ = memory.index.search(visited, 1)
     steps_moved = np.concatenate([np.diff(k, axis=0) for k in keys])
@@ -120,15 +131,19 @@ def main() -> None:
         metavar="KEY:VALUE",
         help="settings over the shipped section, e.g. projection_dim:None (a probe of the key, not a tuning run)",
     )
+    parser.add_argument(
+        "--env-kwargs", nargs="*", default=[], metavar="KEY:VALUE", help="env constructor arguments (heading_noise:0.1)"
+    )
     args = parser.parse_args()
     th.set_num_threads(1)
     overrides = dict(parse_override(item) for item in args.hyperparams)
+    env_kwargs = dict(parse_override(item) for item in args.env_kwargs)
     start = time.perf_counter()
-    model = build(args.env, args.seed, args.normalize, overrides)
+    model = build(args.env, args.seed, args.normalize, overrides, env_kwargs)
     model.learn(args.steps)
-    table = probes(model, args.env, args.steps, args.episodes, args.seed)
+    table = probes(model, args.env, args.steps, args.episodes, args.seed, env_kwargs)
     keys = "standardised observations" if args.normalize else "raw observations"
-    keys += "".join(f", {key}={value!r}" for key, value in overrides.items())
+    keys += "".join(f", {key}={value!r}" for key, value in {**overrides, **env_kwargs}.items())
     print(
         f"CEC on {args.env} ({keys}), seed {args.seed}, {args.steps} env steps ({time.perf_counter() - start:.0f} s)\n"
     )
