@@ -30,7 +30,13 @@ from sb3_gcrl.compare.methods import check_env_id
 from sb3_gcrl.compare.report import summarize, write_outputs
 from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run, visited_goals
 from sb3_gcrl.compare.runner import plan_runs
-from sb3_gcrl.compare.storage import atomic_write_text, is_finished, read_run_record, write_run_result
+from sb3_gcrl.compare.storage import (
+    atomic_write_text,
+    is_finished,
+    lock_output,
+    read_run_record,
+    write_run_result,
+)
 
 TINY_CONFIG = """
 Pendulum-v1:
@@ -168,6 +174,25 @@ def test_tiny_comparison_end_to_end(tmp_path, monkeypatch, capsys):
     assert f"{broken / 'run.json'} holds a JSON list" in err and "redone" in err
     assert read_run_record(broken)["status"] == "finished"
     before = finished_runs(output)
+
+    # 4c. --report-only with a seed more: nothing is trained, the missing run is listed, comparison.json is left
+    # alone, and it works while another compare holds the folder (a study still training)
+    settings_time = (output / "comparison.json").stat().st_mtime_ns
+    more = ["-m", *tiny_methods(configs), "-e", "Pendulum-v1", "--seeds", "0", "1", "2", "--eval-freq", "100"]
+    more += ["--eval-episodes", "1", "-o", str(output)]
+    with lock_output(output):
+        assert compare_main([*more, "--report-only"]) == 0
+    out, err = capsys.readouterr()
+    assert "report of the 4 finished runs of 6 (nothing trained; the report lists the other 2)" in out
+    assert "run failed" not in err
+    assert finished_runs(output) == before and not (output / "runs" / "Pendulum-v1" / "tiny_sac" / "seed_2").exists()
+    assert (output / "comparison.json").stat().st_mtime_ns == settings_time
+    report = (output / "report.md").read_text()
+    assert "tiny_sac / seed 2: `not finished (never ran, interrupted or still training)`" in report
+    assert "| tiny_sac | 2/3 " in report.replace("  ", " ")
+    assert compare_main([*more[:-1], str(tmp_path / "empty"), "--report-only"]) == EXIT_USAGE
+    assert "holds no runs to report on" in capsys.readouterr().err
+    assert not (tmp_path / "empty").exists()
 
     # 5. a worker killed by a signal is recorded as failed; the other runs are kept and the exit code says so
     (tmp_path / "killing_wrapper.py").write_text(KILLING_WRAPPER)
@@ -569,7 +594,7 @@ def test_unusable_evaluations_csv_is_named_with_what_is_wrong(tmp_path, content,
 def test_a_second_compare_on_a_folder_in_use_refuses_and_names_the_pid(tmp_path, capsys):
     import os
 
-    from sb3_gcrl.compare.storage import OutputInUseError, lock_output
+    from sb3_gcrl.compare.storage import OutputInUseError
 
     configs = write_configs(tmp_path / "configs")
     output = tmp_path / "out"
@@ -587,8 +612,6 @@ def test_a_stale_lock_of_a_dead_process_is_taken_over(tmp_path, capsys):
     import os
     import subprocess
     import sys
-
-    from sb3_gcrl.compare.storage import lock_output
 
     dead = subprocess.Popen([sys.executable, "-c", ""])
     dead.wait()

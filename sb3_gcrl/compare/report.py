@@ -153,7 +153,8 @@ def summarize(
         if problem is not None:
             error = f"unusable result: {problem} (run the same command again to redo the run)"
         else:
-            error = "never ran (interrupted?)" if record is None else str(record.get("error") or "")
+            unfinished = "not finished (never ran, interrupted or still training)"
+            error = unfinished if record is None else str(record.get("error") or "")
         failed.append((spec, error, run_dir / LOG_FILE))
     curves = load_curves(finished)
     planned = pd.Series([(s.env_id, s.method) for s in specs]).value_counts().to_dict()

@@ -183,7 +183,7 @@ def plan_runs(
     return specs
 
 
-def _settings_markdown(specs: list[RunSpec], backend: Backend, command: str | None) -> str:
+def _settings_markdown(specs: list[RunSpec], backend: str, command: str | None) -> str:
     methods = {}
     for spec in specs:
         methods.setdefault(spec.method, (spec.algo, set()))[1].add(spec.config)
@@ -202,10 +202,36 @@ def _settings_markdown(specs: list[RunSpec], backend: Backend, command: str | No
         f"- budget: {', '.join(f'{b:,}' for b in budgets)} env steps per run; evaluation every "
         f"{', '.join(f'{f:,}' for f in frequencies)} steps, {first.n_eval_episodes} deterministic episodes",
         f"- hyperparameter overrides: {first.hyperparams or 'none'}; env kwargs: {first.env_kwargs or 'none'}",
-        f"- backend: {type(backend).__name__}",
+        f"- backend: {backend}",
         "",
     ]
     return "\n".join(lines)
+
+
+def _unfinished_runs(specs: list[RunSpec], output: Path, overwrite: bool, redone: bool = True) -> list[Job]:
+    """The planned runs that ``output`` does not hold finished with the same settings.
+
+    :param specs: the planned runs.
+    :param output: the comparison folder.
+    :param overwrite: count finished runs whose settings differ as unfinished (else that is an error).
+    :param redone: the runs will be trained now (said in the notes printed about runs that are redone).
+    :return: ``(spec, run folder)`` of every unfinished run, in plan order.
+    :raises FileExistsError: a run finished with other settings and ``overwrite`` is off.
+    """
+    jobs: list[Job] = []
+    notes: list[str] = []
+    for spec in specs:
+        run_dir = output / "runs" / spec.relative_dir
+        try:
+            if is_finished(run_dir, spec, notes):
+                continue
+        except FileExistsError:
+            if not overwrite:
+                raise
+        jobs.append((spec, run_dir))
+    for note in notes:  # said even without a progress bar
+        print(f"{note}: the run counts as unfinished" + (" and is redone" if redone else ""), file=sys.stderr)
+    return jobs
 
 
 def compare(
@@ -231,6 +257,7 @@ def compare(
     metric: str = "auto",
     title: str | None = None,
     command: str | None = None,
+    report_only: bool = False,
 ) -> ComparisonResult:
     """Run methods x envs x seeds (skipping runs finished earlier in ``output``) and write the analysis.
 
@@ -260,6 +287,9 @@ def compare(
     :param metric: ``success_rate``, ``mean_return`` or ``auto`` (success where every evaluation reports it).
     :param title: report title.
     :param command: command line to quote in the report.
+    :param report_only: train nothing: write the analysis of the runs already finished in ``output`` (the others
+        are listed as missing). It takes no lock, so it also works while another compare trains into ``output``
+        (a snapshot; that compare rewrites the analysis when it ends), and it leaves ``comparison.json`` alone.
     :return: the result, with the summary tables.
     """
     start = time.perf_counter()
@@ -283,26 +313,28 @@ def compare(
     for env_id in envs:
         check_env_id(env_id)
     output = Path(output)
+    if report_only and not (output / "runs").is_dir():
+        raise ValueError(f"{output} holds no runs to report on; run the command without --report-only first")
     specs = plan_runs(
         parsed, envs, seeds, n_timesteps, eval_freq, n_eval_episodes, hyperparams or {}, gym_packages, config_dir,
         save_models, env_kwargs, output / "configs",
     )  # fmt: skip
 
+    def analyse(n_skipped: int, backend_name: str) -> ComparisonResult:
+        summary = summarize(output, specs, final_window=final_window, solve_threshold=solve_threshold, metric=metric)
+        report_title = title or f"{' vs '.join(labels)} on {', '.join(envs)}"
+        wall_time = time.perf_counter() - start
+        settings_md = _settings_markdown(specs, backend_name, command)
+        files = write_outputs(output, summary, report_title, settings_md, wall_time)
+        return ComparisonResult(output, specs, n_skipped, summary, wall_time, files)
+
+    if report_only:
+        jobs = _unfinished_runs(specs, output, overwrite=False, redone=False)
+        return analyse(len(specs) - len(jobs), "none (--report-only)")
+
     # one compare per folder at a time: a second one would race this one's workers (its lock names our pid)
     with lock_output(output):
-        jobs: list[Job] = []
-        notes: list[str] = []
-        for spec in specs:
-            run_dir = output / "runs" / spec.relative_dir
-            try:
-                if is_finished(run_dir, spec, notes):
-                    continue
-            except FileExistsError:
-                if not overwrite:
-                    raise
-            jobs.append((spec, run_dir))
-        for note in notes:  # said even without a progress bar: these runs are redone
-            print(f"{note}: the run counts as unfinished and is redone", file=sys.stderr)
+        jobs = _unfinished_runs(specs, output, overwrite)
         n_skipped = len(specs) - len(jobs)
         # seed-major order: every method gets its first runs early (balanced partial results if interrupted, and
         # slow and fast methods interleave instead of the slowest running alone at the end)
@@ -320,8 +352,4 @@ def compare(
             finally:
                 display.close()
 
-        summary = summarize(output, specs, final_window=final_window, solve_threshold=solve_threshold, metric=metric)
-        title = title or f"{' vs '.join(labels)} on {', '.join(envs)}"
-        wall_time = time.perf_counter() - start
-        files = write_outputs(output, summary, title, _settings_markdown(specs, backend, command), wall_time)
-        return ComparisonResult(output, specs, n_skipped, summary, wall_time, files)
+        return analyse(n_skipped, type(backend).__name__)
