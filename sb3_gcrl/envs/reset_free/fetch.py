@@ -78,15 +78,36 @@ HARD_OBJECT_START = (1.30, 0.75)
 HARD_AIR_GOAL_HALF_XY = 0.025
 HARD_AIR_GOAL_HEIGHT = (0.10, 0.20)
 
-#: Goal-space boxes (block centre xyz reachable inside the walls), for binning visited goals and heatmaps.
-IBC_PUSH_GOAL_LOW, IBC_PUSH_GOAL_HIGH = (1.165, 0.575, 0.40), (1.515, 0.925, 0.50)
-IBC_PICK_AND_PLACE_GOAL_LOW, IBC_PICK_AND_PLACE_GOAL_HIGH = (1.165, 0.575, 0.40), (1.515, 0.925, 0.95)
-HARD_GOAL_LOW, HARD_GOAL_HIGH = (1.075, 0.425, 0.40), (1.525, 1.075, 0.80)
-
 _WALL_HALF_THICKNESS = 0.02
 _BLOCK_HALF_SIZE = 0.025
 # How far (metres) the block centre may press into a wall before the position clamp takes over.
 _CLAMP_TOLERANCE = 0.005
+#: How far MuJoCo's soft contacts let the block centre into the table (29 mm seen under random actions, the gripper
+#: pressing the block down); the goal boxes reach this far below the table top, and ``_CLAMP_TOLERANCE`` beyond
+#: the block centres that the walls allow.
+_TABLE_PENETRATION = 0.04
+
+
+def _goal_box(low_xy: tuple[float, float], high_xy: tuple[float, float], top: float) -> tuple[tuple, tuple]:
+    """Block-centre box (xyz) between walls whose inner faces are at ``low_xy``/``high_xy``, from the table up to
+    ``top``, widened by the contact penetrations.
+
+    :param low_xy: inner faces of the walls on the low side (x, y).
+    :param high_xy: inner faces of the walls on the high side (x, y).
+    :param top: highest block centre (z).
+    :return: the box's low and high corners.
+    """
+    reach = _BLOCK_HALF_SIZE - _CLAMP_TOLERANCE
+    low = (round(low_xy[0] + reach, 6), round(low_xy[1] + reach, 6), round(TABLE_TOP_Z - _TABLE_PENETRATION, 6))
+    return low, (round(high_xy[0] - reach, 6), round(high_xy[1] - reach, 6), top)
+
+
+_IBC_BOX_LOW = (IBC_BOX_CENTER[0] - IBC_BOX_HALF_SIZE, IBC_BOX_CENTER[1] - IBC_BOX_HALF_SIZE)
+_IBC_BOX_HIGH = (IBC_BOX_CENTER[0] + IBC_BOX_HALF_SIZE, IBC_BOX_CENTER[1] + IBC_BOX_HALF_SIZE)
+#: Goal-space boxes (block centre xyz reachable inside the walls), for binning visited goals and heatmaps.
+IBC_PUSH_GOAL_LOW, IBC_PUSH_GOAL_HIGH = _goal_box(_IBC_BOX_LOW, _IBC_BOX_HIGH, 0.50)
+IBC_PICK_AND_PLACE_GOAL_LOW, IBC_PICK_AND_PLACE_GOAL_HIGH = _goal_box(_IBC_BOX_LOW, _IBC_BOX_HIGH, 0.95)
+HARD_GOAL_LOW, HARD_GOAL_HIGH = _goal_box(HARD_ARENA_LOW, HARD_ARENA_HIGH, 0.80)
 # Collision bit shared only by the block and the object-only walls (bit 0 is MuJoCo's default).
 _OBJECT_ONLY_BIT = 2
 
