@@ -192,6 +192,12 @@ def test_tiny_comparison_end_to_end(tmp_path, monkeypatch, capsys):
     assert "| tiny_sac | 2/3 " in report.replace("  ", " ")
     assert compare_main([*more[:-1], str(tmp_path / "empty"), "--report-only"]) == EXIT_USAGE
     assert "holds no runs to report on" in capsys.readouterr().err
+    other = [*more[:-6], "--eval-freq", "50", *more[-4:], "--report-only"]  # settings the runs were not made with
+    assert compare_main(other) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "eval_freq: 100 -> 50" in err and "--report-only reports runs made with the command's own settings" in err
+    assert compare_main([*more, "--report-only", "--overwrite"]) == EXIT_USAGE
+    assert "--overwrite has nothing to redo" in capsys.readouterr().err
     assert not (tmp_path / "empty").exists()
 
     # 5. a worker killed by a signal is recorded as failed; the other runs are kept and the exit code says so

@@ -15,7 +15,7 @@ from sb3_gcrl.compare.backends import Backend, Job, LocalProcessBackend, RayBack
 from sb3_gcrl.compare.methods import Method, check_env_id, parse_method
 from sb3_gcrl.compare.report import Summary, summarize, write_outputs
 from sb3_gcrl.compare.run import RunSpec, prepare_process
-from sb3_gcrl.compare.storage import atomic_write_text, is_finished, lock_output
+from sb3_gcrl.compare.storage import OtherSettingsError, atomic_write_text, is_finished, lock_output
 from sb3_gcrl.zoo_config import ResolvedConfig, check_hyperparameters, check_mode_switching_callbacks
 
 #: evaluations per run when ``eval_freq`` is not given
@@ -216,7 +216,7 @@ def _unfinished_runs(specs: list[RunSpec], output: Path, overwrite: bool, redone
     :param overwrite: count finished runs whose settings differ as unfinished (else that is an error).
     :param redone: the runs will be trained now (said in the notes printed about runs that are redone).
     :return: ``(spec, run folder)`` of every unfinished run, in plan order.
-    :raises FileExistsError: a run finished with other settings and ``overwrite`` is off.
+    :raises OtherSettingsError: a run finished with other settings and ``overwrite`` is off.
     """
     jobs: list[Job] = []
     notes: list[str] = []
@@ -225,7 +225,7 @@ def _unfinished_runs(specs: list[RunSpec], output: Path, overwrite: bool, redone
         try:
             if is_finished(run_dir, spec, notes):
                 continue
-        except FileExistsError:
+        except OtherSettingsError:
             if not overwrite:
                 raise
         jobs.append((spec, run_dir))
@@ -329,7 +329,16 @@ def compare(
         return ComparisonResult(output, specs, n_skipped, summary, wall_time, files)
 
     if report_only:
-        jobs = _unfinished_runs(specs, output, overwrite=False, redone=False)
+        if overwrite:
+            raise ValueError("--report-only trains nothing, so --overwrite has nothing to redo: drop one of them")
+        try:
+            jobs = _unfinished_runs(specs, output, overwrite=False, redone=False)
+        except OtherSettingsError as error:
+            raise ValueError(
+                f"{error.run_dir} holds a finished run made with other settings ({error.details}); --report-only "
+                f"reports runs made with the command's own settings: give the settings of the command recorded in "
+                f"{output / 'comparison.json'}"
+            ) from None
         return analyse(len(specs) - len(jobs), "none (--report-only)")
 
     # one compare per folder at a time: a second one would race this one's workers (its lock names our pid)

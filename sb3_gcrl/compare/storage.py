@@ -197,7 +197,7 @@ def is_finished(run_dir: Path, spec: RunSpec, notes: list[str] | None = None) ->
     :param run_dir: the run's folder.
     :param spec: the run as planned now.
     :param notes: receives a sentence for each unusable file found (the caller says so to the user).
-    :raises FileExistsError: the folder holds a finished run made with other settings; the message says how
+    :raises OtherSettingsError: the folder holds a finished run made with other settings; the message says how
         to proceed (another output folder, or ``--overwrite``).
     """
     record, problem = load_run_record(run_dir)
@@ -214,10 +214,7 @@ def is_finished(run_dir: Path, spec: RunSpec, notes: list[str] | None = None) ->
     if stored != wanted:
         changed = sorted(key for key in set(stored) | set(wanted) if stored.get(key) != wanted.get(key))
         details = ", ".join(f"{key}: {stored.get(key)!r} -> {wanted.get(key)!r}" for key in changed)
-        raise FileExistsError(
-            f"{run_dir} holds a finished run made with other settings ({details}). "
-            "Use another --out folder, or pass --overwrite to redo such runs."
-        )
+        raise OtherSettingsError(run_dir, details)
     problem = result_files_problem(run_dir, record)
     if problem is not None and notes is not None:
         notes.append(problem)
@@ -226,6 +223,21 @@ def is_finished(run_dir: Path, spec: RunSpec, notes: list[str] | None = None) ->
 
 class OutputInUseError(RuntimeError):
     """Another live process holds the lock of a comparison's output folder."""
+
+
+class OtherSettingsError(FileExistsError):
+    """A run folder holds a finished run made with other settings than the run planned now.
+
+    :param run_dir: the run's folder.
+    :param details: the settings that differ, ``key: stored -> wanted``.
+    """
+
+    def __init__(self, run_dir: Path, details: str) -> None:
+        self.run_dir, self.details = run_dir, details
+        super().__init__(
+            f"{run_dir} holds a finished run made with other settings ({details}). "
+            "Use another --out folder, or pass --overwrite to redo such runs."
+        )
 
 
 @contextlib.contextmanager
