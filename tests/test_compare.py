@@ -29,7 +29,7 @@ from sb3_gcrl.compare.cli import main as compare_main
 from sb3_gcrl.compare.methods import check_env_id
 from sb3_gcrl.compare.report import summarize, write_outputs
 from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run, visited_goals
-from sb3_gcrl.compare.runner import plan_runs
+from sb3_gcrl.compare.runner import _config_label, plan_runs
 from sb3_gcrl.compare.storage import (
     atomic_write_text,
     is_finished,
@@ -189,6 +189,9 @@ def test_tiny_comparison_end_to_end(tmp_path, monkeypatch, capsys):
     assert (output / "comparison.json").stat().st_mtime_ns == settings_time
     report = (output / "report.md").read_text()
     assert "tiny_sac / seed 2: `not finished (never ran, interrupted or still training)`" in report
+    recorded = json.loads((output / "comparison.json").read_text())["command"]
+    assert f"Command: `{recorded}`" in report and "--report-only" not in recorded  # the command that trained them
+    assert "re-made from the finished runs by: `sb3-gcrl compare " in report and "--report-only`" in report
     assert "| tiny_sac | 2/3 " in report.replace("  ", " ")
     assert compare_main([*more[:-1], str(tmp_path / "empty"), "--report-only"]) == EXIT_USAGE
     assert "holds no runs to report on" in capsys.readouterr().err
@@ -454,6 +457,13 @@ def test_every_preset_resolves_to_registered_envs_and_existing_configs(name, tmp
     )  # fmt: skip
     assert len(specs) == len(preset.methods) * len(preset.envs) * len(preset.seeds)
     assert all(Path(spec.config).is_file() for spec in specs)
+
+
+def test_report_names_a_shipped_config_by_its_place_in_the_package_not_this_machines_path(tmp_path):
+    """A study's report is kept in git: it must read the same on every clone."""
+    assert _config_label(str(ZOO_CONFIGS_DIR / "cec.yml")) == "sb3_gcrl/zoo_configs/cec.yml"
+    own = str(tmp_path / "zoo_configs" / "cec.yml")  # a user's file of the same name stays as given
+    assert _config_label(own) == own
 
 
 def test_env_kwargs_reach_the_env_constructor(tmp_path):

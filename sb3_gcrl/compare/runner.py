@@ -183,13 +183,34 @@ def plan_runs(
     return specs
 
 
-def _settings_markdown(specs: list[RunSpec], backend: str, command: str | None) -> str:
+def _config_label(config: str) -> str:
+    """A config path as the report shows it: a shipped file by its place in the package, not this machine's path."""
+    path = Path(config)
+    if path.parent.resolve() == ZOO_CONFIGS_DIR:
+        return f"{ZOO_CONFIGS_DIR.parent.name}/{ZOO_CONFIGS_DIR.name}/{path.name}"
+    return config
+
+
+def _recorded_command(output: Path) -> str | None:
+    """The command recorded in ``output/comparison.json`` by the compare that trained its runs (None if unreadable)."""
+    try:
+        command = json.loads((output / "comparison.json").read_text()).get("command")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return command if isinstance(command, str) else None
+
+
+def _settings_markdown(
+    specs: list[RunSpec], backend: str, command: str | None, report_command: str | None = None
+) -> str:
     methods = {}
     for spec in specs:
-        methods.setdefault(spec.method, (spec.algo, set()))[1].add(spec.config)
+        methods.setdefault(spec.method, (spec.algo, set()))[1].add(_config_label(spec.config))
     lines = ["## Settings", ""]
     if command:
         lines += [f"Command: `{command}`", ""]
+    if report_command:
+        lines += [f"This report was re-made from the finished runs by: `{report_command}`", ""]
     lines += ["| method | algorithm | RL-Zoo config |", "| --- | --- | --- |"]
     lines += [f"| {name} | {algo} | {', '.join(sorted(configs))} |" for name, (algo, configs) in methods.items()]
     first = specs[0]
@@ -320,11 +341,13 @@ def compare(
         save_models, env_kwargs, output / "configs",
     )  # fmt: skip
 
-    def analyse(n_skipped: int, backend_name: str) -> ComparisonResult:
+    def analyse(
+        n_skipped: int, backend_name: str, trained_by: str | None = command, report_command: str | None = None
+    ) -> ComparisonResult:
         summary = summarize(output, specs, final_window=final_window, solve_threshold=solve_threshold, metric=metric)
         report_title = title or f"{' vs '.join(labels)} on {', '.join(envs)}"
         wall_time = time.perf_counter() - start
-        settings_md = _settings_markdown(specs, backend_name, command)
+        settings_md = _settings_markdown(specs, backend_name, trained_by, report_command)
         files = write_outputs(output, summary, report_title, settings_md, wall_time)
         return ComparisonResult(output, specs, n_skipped, summary, wall_time, files)
 
@@ -339,7 +362,8 @@ def compare(
                 f"reports runs made with the command's own settings: give the settings of the command recorded in "
                 f"{output / 'comparison.json'}"
             ) from None
-        return analyse(len(specs) - len(jobs), "none (--report-only)")
+        # the report quotes the command that trained the runs (recorded by it), and this one as the report's maker
+        return analyse(len(specs) - len(jobs), "none (--report-only)", _recorded_command(output) or command, command)
 
     # one compare per folder at a time: a second one would race this one's workers (its lock names our pid)
     with lock_output(output):
