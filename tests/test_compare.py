@@ -146,6 +146,8 @@ def test_tiny_comparison_end_to_end(tmp_path, monkeypatch, capsys):
     assert evaluations["success_rate"].isna().all()  # Pendulum reports no is_success
     assert (evaluations["mean_length"] == 200).all()
     assert (run_dir / "zoo" / "sac").is_dir()  # RL-Zoo's own outputs (config.yml, monitor.csv)
+    record = read_run_record(run_dir)
+    assert 0 < record["cpu_time_s"] < 2 * record["wall_time_s"]  # one torch thread: CPU time about the wall time
     summary = pd.read_csv(output / "summary.csv")
     assert summary["method"].tolist() == ["tiny_sac", "tiny_td3"]
     assert summary["n_runs"].tolist() == [2, 2]
@@ -481,6 +483,25 @@ def test_run_json_of_an_older_version_without_new_fields_still_counts_as_finishe
     del record["spec"]["env_kwargs"]  # a field added later, at its default value
     (tmp_path / "run.json").write_text(json.dumps(record))
     assert is_finished(tmp_path, spec)
+
+
+def test_report_gives_wall_and_cpu_time_per_method_and_says_where_an_older_run_did_not_record_cpu(tmp_path):
+    rows = [{"timesteps": 0, "mean_return": 0.0}, {"timesteps": 10, "mean_return": 1.0}]
+    specs = [make_spec(seed=0), make_spec(seed=1), make_spec(method="n", seed=0)]
+    times = [(100.0, 90.0), (300.0, 250.0), (40.0, math.nan)]
+    for spec, (wall, cpu) in zip(specs, times):
+        write_run_result(tmp_path / "runs" / spec.relative_dir, RunResult(spec, "finished", rows, wall, cpu))
+    older = tmp_path / "runs" / specs[2].relative_dir / "run.json"
+    record = json.loads(older.read_text())
+    assert record["cpu_time_s"] is None  # not measured: null, never NaN
+    del record["cpu_time_s"]  # a run of a version that did not record it
+    older.write_text(json.dumps(record))
+    summary = summarize(tmp_path, specs)
+    assert summary.run_times["cpu_time_s"].tolist()[:2] == [90.0, 250.0]
+    write_outputs(tmp_path, summary, "t", "", 1.0)
+    report = (tmp_path / "report.md").read_text()
+    assert "| m | 2 | 200 s (100-300) | 170 s (90-250) | 0.09 h |" in report
+    assert "| n | 1 | 40 s | not recorded | not recorded |" in report
 
 
 GOAL_SAC_CONFIG = """

@@ -49,7 +49,8 @@ class Summary:
     :param summary: per (env, method) aggregates (see :func:`~sb3_gcrl.analysis.statistics.aggregate_scores`).
     :param metrics: metric used per env.
     :param failed: ``(spec, error, log path)`` of the runs that failed, never ran, or left unusable files.
-    :param run_wall_times: wall time (s) of every finished run, as its worker measured it.
+    :param run_times: ``env``, ``method``, ``wall_time_s`` and ``cpu_time_s`` (NaN where the run did not record it)
+        of every finished run, as its worker measured them.
     :param run_dirs: ``(env, method) -> folders`` of the finished runs.
     :param table: the printed Markdown table.
     :param all_goals_curves: every all-goals evaluation (``all_goals.csv``) of the finished runs that have one
@@ -65,7 +66,7 @@ class Summary:
     metrics: dict[str, str]
     failed: list[tuple[RunSpec, str, Path]]
     table: str
-    run_wall_times: list[float]
+    run_times: pd.DataFrame
     run_dirs: dict[tuple[str, str], list[Path]]
     all_goals_curves: pd.DataFrame = field(default_factory=pd.DataFrame)
     all_goals_scores: pd.DataFrame = field(default_factory=pd.DataFrame)
@@ -137,7 +138,7 @@ def summarize(
     if metric not in ("auto", *METRICS):
         raise ValueError(f"metric must be 'auto' or one of {METRICS}, got {metric!r}")
     metric_choice = metric
-    finished, failed, wall_times, run_dirs, all_goals_runs = [], [], [], {}, []
+    finished, failed, times, run_dirs, all_goals_runs = [], [], [], {}, []
     for spec in specs:
         run_dir = output / "runs" / spec.relative_dir
         record, problem = load_run_record(run_dir)
@@ -147,7 +148,9 @@ def summarize(
                 finished.append((spec.env_id, spec.method, spec.seed, run_dir / EVALUATIONS_FILE))
                 if record.get("n_all_goals_evaluations") is not None:
                     all_goals_runs.append((spec.env_id, spec.method, spec.seed, run_dir / ALL_GOALS_FILE))
-                wall_times.append(float(record["wall_time_s"]))
+                cpu_time = record.get("cpu_time_s")  # runs of older versions did not record it
+                cpu_time = float(cpu_time) if isinstance(cpu_time, (int, float)) else math.nan
+                times.append((spec.env_id, spec.method, float(record["wall_time_s"]), cpu_time))
                 run_dirs.setdefault((spec.env_id, spec.method), []).append(run_dir)
                 continue
         if problem is not None:
@@ -177,7 +180,8 @@ def summarize(
     scores_table = _in_order(pd.concat(scores, ignore_index=True), order) if scores else pd.DataFrame()
     summary = _in_order(pd.concat(summaries, ignore_index=True), order) if summaries else pd.DataFrame()
     table = format_table(summary, metrics) if len(summary) else "(no finished runs)"
-    result = Summary(curves, scores_table, summary, metrics, failed, table, wall_times, run_dirs)
+    run_times = pd.DataFrame(times, columns=["env", "method", "wall_time_s", "cpu_time_s"])
+    result = Summary(curves, scores_table, summary, metrics, failed, table, run_times, run_dirs)
     if all_goals_runs:
         threshold = SUCCESS_THRESHOLD if solve_threshold is None else solve_threshold
         result.all_goals_curves = _in_order(load_curves(all_goals_runs), order)
@@ -209,6 +213,40 @@ def _aggregate(curves: pd.DataFrame, metrics: dict[str, str]) -> pd.DataFrame:
             for env_id, group in curves.groupby("env", sort=False)
         ]
     )
+
+
+def _cost_section(run_times: pd.DataFrame) -> list[str]:
+    """Markdown: what a run of each method cost, wall and CPU time (medians, ranges and sums over finished runs)."""
+    if not len(run_times):
+        return []
+
+    def seconds(values: pd.Series) -> str:
+        values = values.dropna()
+        if not len(values):
+            return "not recorded"
+        spread = f" ({values.min():,.0f}-{values.max():,.0f})" if len(values) > 1 else ""
+        return f"{values.median():,.0f} s{spread}"
+
+    lines = [
+        "## Cost",
+        "",
+        "Per run, the median (range) over the finished runs, as the run's worker measured it (imports excluded; CPU "
+        "time: the run's process, all threads; runs of earlier versions did not record it).",
+        "",
+        "| method | runs | wall time per run | CPU time per run | CPU time, all runs |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for method, group in run_times.groupby("method", sort=False):
+        total = group["cpu_time_s"].sum(min_count=1)
+        total_text = "not recorded" if math.isnan(total) else f"{total / 3600:.2f} h"
+        if group["cpu_time_s"].isna().any() and not math.isnan(total):
+            total_text += f" ({group['cpu_time_s'].notna().sum()} of {len(group)} runs)"
+        lines.append(
+            f"| {method} | {len(group)} | {seconds(group['wall_time_s'])} | {seconds(group['cpu_time_s'])} "
+            f"| {total_text} |"
+        )
+    lines.append("")
+    return lines
 
 
 def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, wall_time_s: float) -> list[Path]:
@@ -263,12 +301,7 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
             last = error.strip().splitlines()[-1] if error.strip() else "unknown error"
             lines.append(f"- {spec.env_id} / {spec.method} / seed {spec.seed}: `{last}` (log: `{log}`)")
         lines.append("")
-    if summary.run_wall_times:
-        times = pd.Series(summary.run_wall_times)
-        lines.append(
-            f"Runs: {len(times)} finished, {times.median():.0f} s median wall time per run (sum {times.sum():.0f} s, "
-            "imports excluded)."
-        )
+    lines += _cost_section(summary.run_times)
     lines.append(f"Wall time of this invocation (resumed runs cost nothing): {wall_time_s:.0f} s.")
     atomic_write_text(output / "report.md", "\n".join(lines) + "\n")
     return [*written, output / "report.md"]

@@ -99,6 +99,8 @@ class RunSpec:
 class RunResult:
     """Outcome of a run: ``status`` is ``"finished"`` or ``"failed"`` (then ``error`` holds the traceback).
 
+    ``wall_time_s`` and ``cpu_time_s`` are the run's wall and CPU time (its process's, all threads) as the worker
+    measured them.
     ``visited_goals`` holds up to :data:`MAX_VISITED_POINTS` achieved goals of the training data (off-policy agents
     of goal envs only, else None), for state-visitation heatmaps and task-relevant shares.
     ``all_goals`` holds the rows of the run's :class:`~sb3_gcrl.post_exploration.AllGoalsEvalCallback` (None when
@@ -109,6 +111,7 @@ class RunResult:
     status: str
     evaluations: list[dict[str, float]] = field(default_factory=list)
     wall_time_s: float = math.nan
+    cpu_time_s: float = math.nan
     error: str = ""
     log: str = ""
     visited_goals: np.ndarray | None = None
@@ -226,7 +229,7 @@ def execute_run(
     :param report_progress: called with env-step increments (progress bars).
     :return: the run's result with its evaluation rows (and all-goals rows).
     """
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     recorder = all_goals = None
     try:
         with contextlib.redirect_stdout(log_file), contextlib.redirect_stderr(log_file):
@@ -280,6 +283,7 @@ def execute_run(
             "finished",
             recorder.records,
             wall_time,
+            time.process_time() - cpu_start,
             visited_goals=visited_goals(model),
             all_goals=all_goals.records if all_goals is not None else None,
         )
@@ -288,4 +292,5 @@ def execute_run(
         print(error, file=log_file)
         records = recorder.records if recorder is not None else []
         all_goals_records = all_goals.records if all_goals is not None else None
-        return RunResult(spec, "failed", records, time.perf_counter() - start, error=error, all_goals=all_goals_records)
+        wall_time, cpu_time = time.perf_counter() - start, time.process_time() - cpu_start
+        return RunResult(spec, "failed", records, wall_time, cpu_time, error=error, all_goals=all_goals_records)

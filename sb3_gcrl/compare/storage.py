@@ -25,6 +25,7 @@ import contextlib
 import csv
 import io
 import json
+import math
 import os
 import shutil
 import sys
@@ -84,6 +85,7 @@ def write_run_result(run_dir: Path, result: RunResult) -> None:
     record = {
         "status": result.status,
         "wall_time_s": result.wall_time_s,
+        "cpu_time_s": None if math.isnan(result.cpu_time_s) else result.cpu_time_s,  # None: not measured
         "n_evaluations": len(result.evaluations),
         # None: the run has no all-goals evaluation (no all_goals.csv is expected)
         "n_all_goals_evaluations": None if result.all_goals is None else len(result.all_goals),
