@@ -38,6 +38,7 @@ import pandas as pd
 
 from sb3_gcrl.compare.cli import _hyperparam
 from sb3_gcrl.compare.presets import preset_labels, run_preset, select_methods
+from sb3_gcrl.compare.storage import COMPARISON_FILE
 
 PRESETS = ("ch3", "ch3-ablations", "ch3-world-model", "ch3-baselines", "ch3-baselines-tabletop")
 
@@ -68,7 +69,7 @@ def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
     from sb3_gcrl.compare.storage import VISITED_FILE
 
     curves = pd.read_csv(output / "curves.csv")
-    specs = [RunSpec.from_dict(spec) for spec in json.loads((output / "comparison.json").read_text())["specs"]]
+    specs = [RunSpec.from_dict(spec) for spec in json.loads((output / COMPARISON_FILE).read_text())["specs"]]
     task = {env_id: task_goals(env_id) for env_id in curves["env"].unique()}
     rows = []
     for (env_id, method, seed), run in curves.groupby(["env", "method", "seed"], sort=False):
@@ -109,7 +110,7 @@ def diagnostics_table(output: Path) -> pd.DataFrame:
     from sb3_gcrl.morefree.diagnostics import parse_diagnostics
 
     rows = []
-    for spec in (RunSpec.from_dict(s) for s in json.loads((output / "comparison.json").read_text())["specs"]):
+    for spec in (RunSpec.from_dict(s) for s in json.loads((output / COMPARISON_FILE).read_text())["specs"]):
         log = output / "runs" / spec.relative_dir / LOG_FILE
         if not log.is_file():
             continue

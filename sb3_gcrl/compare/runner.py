@@ -15,7 +15,13 @@ from sb3_gcrl.compare.backends import Backend, Job, LocalProcessBackend, RayBack
 from sb3_gcrl.compare.methods import Method, check_env_id, parse_method
 from sb3_gcrl.compare.report import Summary, summarize, write_outputs
 from sb3_gcrl.compare.run import RunSpec, prepare_process
-from sb3_gcrl.compare.storage import OtherSettingsError, atomic_write_text, is_finished, lock_output
+from sb3_gcrl.compare.storage import (
+    COMPARISON_FILE,
+    OtherSettingsError,
+    atomic_write_text,
+    is_finished,
+    lock_output,
+)
 from sb3_gcrl.zoo_config import ResolvedConfig, check_hyperparameters, check_mode_switching_callbacks
 
 #: evaluations per run when ``eval_freq`` is not given
@@ -194,7 +200,7 @@ def _config_label(config: str) -> str:
 def _recorded_command(output: Path) -> str | None:
     """The command recorded in ``output/comparison.json`` by the compare that trained its runs (None if unreadable)."""
     try:
-        command = json.loads((output / "comparison.json").read_text()).get("command")
+        command = json.loads((output / COMPARISON_FILE).read_text()).get("command")
     except (OSError, ValueError, AttributeError):
         return None
     return command if isinstance(command, str) else None
@@ -360,7 +366,7 @@ def compare(
             raise ValueError(
                 f"{error.run_dir} holds a finished run made with other settings ({error.details}); --report-only "
                 f"reports runs made with the command's own settings: give the settings of the command recorded in "
-                f"{output / 'comparison.json'}"
+                f"{output / COMPARISON_FILE}"
             ) from None
         # the report quotes the command that trained the runs (recorded by it), and this one as the report's maker
         return analyse(len(specs) - len(jobs), "none (--report-only)", _recorded_command(output) or command, command)
@@ -374,7 +380,7 @@ def compare(
         jobs.sort(key=lambda job: job[0].seed)
         backend = make_backend(backend, n_workers, ray_address)
         settings = {"command": command, "specs": [spec.to_dict() for spec in specs]}
-        atomic_write_text(output / "comparison.json", json.dumps(settings, indent=2) + "\n")
+        atomic_write_text(output / COMPARISON_FILE, json.dumps(settings, indent=2) + "\n")
         if n_skipped and progress:
             print(f"{n_skipped} of {len(specs)} runs already finished in {output}: skipped", file=sys.stderr)
 

@@ -47,6 +47,7 @@ EVALUATIONS_FILE = "evaluations.csv"
 ALL_GOALS_FILE = "all_goals.csv"
 LOG_FILE = "train.log"
 LOCK_FILE = "compare.lock"
+COMPARISON_FILE = "comparison.json"
 #: columns every ``evaluations.csv`` must have, with numbers in every row
 REQUIRED_EVALUATION_COLUMNS = ("timesteps", "mean_return")
 #: columns every ``all_goals.csv`` must have, with numbers in every row
