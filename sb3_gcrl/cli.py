@@ -317,7 +317,8 @@ def enjoy(argv: list[str]) -> int:
 
 
 def list_envs(argv: list[str]) -> int:
-    """``sb3-gcrl list-envs``: print every ``GCRL/`` environment id with its spaces.
+    """``sb3-gcrl list-envs``: print every ``GCRL/`` environment id with its spaces (or, for a task whose optional
+    extra is not installed, the install command its error names).
 
     :param argv: unused (no options).
     :return: exit code.
@@ -329,7 +330,11 @@ def list_envs(argv: list[str]) -> int:
     if argv:
         raise SystemExit(f"sb3-gcrl list-envs takes no arguments, got {argv}")
     for env_id in sorted(k for k in gym.registry if k.startswith("GCRL/")):
-        env = gym.make(env_id)
+        try:
+            env = gym.make(env_id)
+        except ImportError as error:  # an optional extra (metaworld for GCRL/SawyerDoor-v0) is not installed
+            print(f"{env_id}\n  not available: {error}")
+            continue
         try:
             print(f"{env_id}\n  observation: {env.observation_space}\n  action:      {env.action_space}")
         finally:

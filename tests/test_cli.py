@@ -50,6 +50,32 @@ def test_list_algos_lists_ours_and_stock(capsys: pytest.CaptureFixture[str]) -> 
         assert name in out
 
 
+def test_list_envs_goes_on_past_a_task_whose_optional_extra_is_missing(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without metaworld, GCRL/SawyerDoor-v0 cannot be made; list-envs names the fix and lists the rest."""
+
+    class Spaces:
+        observation_space = gym.spaces.Box(0.0, 1.0, (2,))
+        action_space = gym.spaces.Discrete(3)
+
+        def close(self) -> None:
+            pass
+
+    def make(env_id: str, **kwargs: object) -> Spaces:
+        if env_id == "GCRL/SawyerDoor-v0":
+            raise ImportError("GCRL/SawyerDoor-v0 needs metaworld 3.0.0: pip install -e '.[door]'")
+        return Spaces()
+
+    monkeypatch.setattr(gym, "make", make)
+    assert main(["list-envs"]) == 0
+    out = capsys.readouterr().out
+    assert "GCRL/SawyerDoor-v0\n  not available: GCRL/SawyerDoor-v0 needs metaworld" in out
+    ids = sorted(k for k in gym.registry if k.startswith("GCRL/"))
+    assert ids[-1] != "GCRL/SawyerDoor-v0" and f"{ids[-1]}\n  observation: Box" in out
+    assert out.count("  action:      Discrete(3)") == len(ids) - 1
+
+
 def test_every_registered_algorithm_imports() -> None:
     from stable_baselines3.common.base_class import BaseAlgorithm
 
