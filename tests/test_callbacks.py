@@ -79,6 +79,27 @@ def test_callback_errors_without_the_wrappers() -> None:
         ResetFreeCallback(log_freq=0)
 
 
+def test_callback_refuses_a_buffer_that_would_store_actions_the_env_did_not_execute() -> None:
+    """Random Explore actions replace the agent's; SB3's own HER buffer would store the agent's instead."""
+    from stable_baselines3 import HerReplayBuffer
+
+    env = make_vec_env(ENV_ID, n_envs=1, seed=0, wrapper_class=morefree_wrapper)
+    model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, policy_kwargs={"net_arch": [8]})
+    with pytest.raises(TypeError, match="HerReplayBuffer.*use replay_buffer_class=sb3_gcrl.her.ExecutedActionHer"):
+        model.learn(10, callback=ResetFreeCallback())
+    assert model.num_timesteps == 0
+
+    def agent_explores(env: gym.Env) -> gym.Env:  # the agent acts in Explore too: nothing is replaced
+        env = ResetFreeWrapper(env, hard_reset_every=200_000, eval_horizon=EVAL_HORIZON)
+        kwargs = {"alpha": 0.5, "goal_low": [-1.5, -1.5], "goal_high": [1.5, 1.5], "n_bins": 6}
+        return GoExploreWrapper(env, "back_and_forth", kwargs, explore_policy="agent")
+
+    env = make_vec_env(ENV_ID, n_envs=1, seed=0, wrapper_class=agent_explores)
+    model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, policy_kwargs={"net_arch": [8]})
+    model.learn(10, callback=ResetFreeCallback())
+    assert model.num_timesteps == 10
+
+
 def test_save_load_round_trip_of_a_reset_free_model(tmp_path) -> None:
     model = make_model(n_envs=2, seed=1)
     model.learn(300, callback=ResetFreeCallback(log_freq=100))

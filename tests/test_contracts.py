@@ -597,6 +597,37 @@ def test_optimizer_state_is_saved_where_there_is_one(name: str):
         assert all(n in params for n in optimizers)
 
 
+# ---------------------------------------------------------------------------------------------------- bad data
+class NanRewardAt(gym.Wrapper):
+    """Return a NaN reward at the given step of the env's life (counted over episodes)."""
+
+    def __init__(self, env: gym.Env, step: int = 5) -> None:
+        super().__init__(env)
+        self.nan_step, self.steps = step, 0
+
+    def step(self, action: Any) -> Any:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.steps += 1
+        return obs, float("nan") if self.steps == self.nan_step else reward, terminated, truncated, info
+
+
+#: agents that do not learn from the env's reward: MoReFree learns its own distance reward (the env's reward is not
+#: stored), IMGEP rewards reaching its own commanded goals
+IGNORE_ENV_REWARD = {"morefree", "imgep"}
+
+
+@algo_names
+@pytest.mark.filterwarnings("ignore:.*so this call trains nothing")
+def test_a_nan_reward_fails_at_the_step_that_returned_it(name: str):
+    case = CASES[name]
+    model = case.make(make_vec_env(case.env_id, n_envs=1, seed=0, wrapper_class=NanRewardAt))
+    if name in IGNORE_ENV_REWARD:
+        model.learn(20)
+        return
+    with pytest.raises(ValueError, match=r"^Env 0 returned the reward nan at timestep [45]: .*VecCheckNan"):
+        model.learn(20)
+
+
 # ---------------------------------------------------------------------------------------------------- determinism
 def rollout_actions(model: BaseAlgorithm, n_steps: int = 50) -> tuple[np.ndarray, np.ndarray]:
     env = model.get_env()

@@ -147,6 +147,8 @@ def test_cnn_policy_alias_is_gone_and_names_the_right_policy():
         (dict(capacity_per_action="100"), TypeError, "capacity_per_action must be an integer"),
         (dict(n_neighbors=2.5), ValueError, "n_neighbors"),
         (dict(n_neighbors=0), ValueError, "n_neighbors"),
+        # a kNN estimate needs k + 1 rows: every unseen state would stay at +inf
+        (dict(capacity_per_action=3, n_neighbors=3), ValueError, "capacity_per_action=3 must exceed n_neighbors=3"),
         (dict(projection_dim=0), ValueError, "projection_dim"),
         (dict(projection_dim=2.5), ValueError, "projection_dim"),
         (dict(gamma=np.nan), ValueError, "gamma"),

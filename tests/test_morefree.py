@@ -513,16 +513,32 @@ def test_invalid_spaces_and_hyperparameters_are_refused():
         MoReFree("MultiInputPolicy", "Pendulum-v1")
     with pytest.raises(ValueError, match="train_ratio"):
         MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", train_ratio=0)
-    with pytest.raises(ValueError, match="imagination_alpha"):
-        MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", imagination_alpha=1.5)
     with pytest.raises(ValueError, match="distance_warmup"):
         MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", distance_warmup=-1)
-    with pytest.raises(TypeError, match="distance_on_replay"):
+    with pytest.raises(ValueError, match="distance_on_replay must be True or False"):
         MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", distance_on_replay="yes")
     with pytest.raises(ValueError, match="peg_elite_fraction"):
         MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", peg_elite_fraction=0.0)
-    with pytest.raises(TypeError, match="compile_train_step"):
+    with pytest.raises(ValueError, match="compile_train_step must be True or False"):
         MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", compile_train_step="yes")
+    bad = [
+        ({"learning_rate": 0.0}, r"learning_rate must be > 0.0, got 0.0"),
+        ({"expl_reward_scale": float("nan")}, r"expl_reward_scale must be a finite number"),
+        ({"batch_length": 2.5}, r"batch_length must be an integer"),
+        ({"gamma": "0.9"}, r"gamma must be a number in \[0, 1\], got '0.9'"),
+        ({"imagination_alpha": 1.5}, r"imagination_alpha must be a number in \[0, 1\]"),
+        # 40 rows per env hold no 50-step sequence: nothing would ever be trained
+        ({"buffer_size": 40, "batch_length": 50}, r"buffer_size=40 keeps 40 steps per env .* at least 50"),
+    ]
+    for kwargs, message in bad:
+        with pytest.raises((TypeError, ValueError), match=message):
+            MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", **kwargs)
+    for kwargs, message in [
+        ({"kl_balance": 5.0}, r"kl_balance must be a number in \[0, 1\]"),
+        ({"free_nats": -1.0}, r"free_nats must be >= 0.0"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            tiny("GCRL/GrowingTreeGoal-v0", policy_kwargs={**TINY, **kwargs})
     with pytest.raises(ValueError, match="n_threads"):
         MoReFree("MultiInputPolicy", "GCRL/GrowingTreeGoal-v0", n_threads=0)
     with pytest.raises(ValueError, match="head_hidden"):

@@ -118,6 +118,14 @@ def test_bad_hyperparameters_raise() -> None:
         GoalCommandWrapper(LineGoalEnv(), "peg")
     with pytest.raises(ValueError, match="explore_policy"):
         GoExploreWrapper(LineGoalEnv(), "env_default", eval_horizon=10, explore_policy="rnd")
+    for kwargs, message in [
+        ({"eval_horizon": 0}, "eval_horizon must be >= 2"),  # no Go phase and no Explore phase to halve it into
+        ({"eval_horizon": 10, "go_steps": 2.5}, "go_steps must be an integer, got 2.5"),
+        ({"eval_horizon": 10, "explore_steps": -1}, "explore_steps must be >= 0"),
+        ({"eval_horizon": 10, "end_go_on_success": "false"}, "end_go_on_success must be True or False"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            GoExploreWrapper(LineGoalEnv(), "env_default", **kwargs)
 
 
 # --- reset-free wrapper ----------------------------------------------------------------------------------------------
@@ -479,13 +487,20 @@ def test_training_without_the_callback_warns_and_evaluation_does_not() -> None:
     from stable_baselines3.common.evaluation import evaluate_policy
 
     from sb3_gcrl.callbacks import ResetFreeCallback
+    from sb3_gcrl.her import ExecutedActionDictReplayBuffer
 
     def make(env: gym.Env) -> gym.Env:
         return GoExploreWrapper(ResetFreeWrapper(env, eval_horizon=10), "env_default")
 
     def model() -> SAC:
         env = make_vec_env(lambda: gym.wrappers.TimeLimit(LineGoalEnv(), 10), n_envs=1, seed=0, wrapper_class=make)
-        return SAC("MultiInputPolicy", env, learning_starts=1000, policy_kwargs={"net_arch": [8]})
+        return SAC(
+            "MultiInputPolicy",
+            env,
+            learning_starts=1000,
+            replay_buffer_class=ExecutedActionDictReplayBuffer,  # the Explore phase's random actions are stored
+            policy_kwargs={"net_arch": [8]},
+        )
 
     forgot = model()
     with pytest.warns(UserWarning, match=r"never switched to training mode.*callback=ResetFreeCallback\(\)"):

@@ -22,6 +22,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_gcrl.callbacks.segments import GoalSuccessLog
 from sb3_gcrl.common.validation import check_int
+from sb3_gcrl.her.executed_action import check_stores_executed_actions
 from sb3_gcrl.wrappers.mode import switch_training_envs
 
 
@@ -46,6 +47,8 @@ class ResetFreeCallback(BaseCallback):
             "sb3_gcrl.wrappers.ResetFreeWrapper (and GoExploreWrapper/GoalCommandWrapper), e.g. with env_wrapper "
             "in the RL-Zoo YAML",
         )
+        if env.has_attr("replaces_actions") and any(env.get_attr("replaces_actions")):
+            check_stores_executed_actions(self.model, "ResetFreeCallback", "GoExploreWrapper's Explore phase")
         if self.verbose > 0:
             print(f"ResetFreeCallback: reset-free mode on for {env.num_envs} training env(s)")
 

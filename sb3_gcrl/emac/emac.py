@@ -20,13 +20,20 @@ from torch.nn import functional as F
 from sb3_gcrl.common.episodes import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
-from sb3_gcrl.common.validation import check_bool, check_choice, check_float, check_int, check_optional_int
+from sb3_gcrl.common.validation import (
+    FiniteRewardsMixin,
+    check_bool,
+    check_choice,
+    check_float,
+    check_int,
+    check_optional_int,
+)
 from sb3_gcrl.emac.memory import NEIGHBOUR_WEIGHTINGS, NeighbourWeighting
 from sb3_gcrl.emac.policies import EMACPolicy, MultiInputEMACPolicy
 from sb3_gcrl.memory.knn import KNN_BACKENDS, KNNBackend
 
 
-class EMAC(EpisodeRecordingMixin, ModelFileMixin, ClassNamedRunsMixin, TD3):
+class EMAC(EpisodeRecordingMixin, ModelFileMixin, ClassNamedRunsMixin, FiniteRewardsMixin, TD3):
     """Episodic Memory Actor-Critic: DDPG whose critic also regresses onto an episodic memory's Monte-Carlo estimate.
 
     Critic loss of the paper, for each critic ``Q_i`` (one, as in DDPG, by default)::

@@ -6,6 +6,7 @@ from sb3_gcrl.her.executed_action import (
     ExecutedActionHerReplayBuffer,
     ExecutedActionMixin,
     ExecutedActionReplayBuffer,
+    check_stores_executed_actions,
 )
 from sb3_gcrl.her.task_relevant import TaskRelevantHerReplayBuffer
 
@@ -16,4 +17,5 @@ __all__ = [
     "ExecutedActionReplayBuffer",
     "TaskRelevantHerReplayBuffer",
     "check_n_sampled_goal",
+    "check_stores_executed_actions",
 ]

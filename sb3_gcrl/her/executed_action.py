@@ -24,11 +24,41 @@ from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 from sb3_gcrl.common.validation import check_n_sampled_goal
 from sb3_gcrl.wrappers.go_explore import EXECUTED_ACTION_KEY
 
+#: the ``replay_buffer_class`` line of an RL-Zoo YAML that stores executed actions
+EXECUTED_ACTION_BUFFER_YAML = "\"__import__('sb3_gcrl.her').her.ExecutedActionHerReplayBuffer\""
+
+
+def check_stores_executed_actions(model: Any, caller: str, replacer: str) -> None:
+    """Raise unless ``model`` stores the actions the env executed (``info["executed_action"]``).
+
+    A wrapper that replaces the agent's action (an Explore phase of
+    :class:`~sb3_gcrl.wrappers.GoExploreWrapper`, post-exploration) reports the executed action in ``info``; SB3's
+    own replay buffers ignore it and store the policy's action, which the env never ran. The buffers of this module,
+    and agents that store executed actions themselves (``stores_executed_actions = True``, e.g.
+    :class:`~sb3_gcrl.morefree.MoReFree`), pass.
+
+    :param model: the algorithm being trained.
+    :param caller: who checks (named in the error).
+    :param replacer: what replaces the actions (named in the error).
+    :raises TypeError: the model would store actions the env did not execute.
+    """
+    buffer = getattr(model, "replay_buffer", None)
+    if getattr(model, "stores_executed_actions", False) or getattr(buffer, "stores_executed_actions", False):
+        return
+    raise TypeError(
+        f"{caller}: {replacer} replaces the agent's actions, and the replay buffer "
+        f"({type(buffer).__name__}) would store the agent's actions, not the ones the env executed; use "
+        "replay_buffer_class=sb3_gcrl.her.ExecutedActionHerReplayBuffer (or TaskRelevantHerReplayBuffer; YAML: "
+        f"replay_buffer_class: {EXECUTED_ACTION_BUFFER_YAML})"
+    )
+
 
 class ExecutedActionMixin:
     """Mixin for SB3 replay buffers: replace stored actions by ``info["executed_action"]`` when present."""
 
     action_space: spaces.Space
+    #: read by :func:`check_stores_executed_actions`
+    stores_executed_actions = True
 
     def _to_buffer_action(self, action: Any) -> np.ndarray:
         """Env-unit action -> the representation SB3 stores (rescaled to [-1, 1] for ``Box``)."""

@@ -134,6 +134,12 @@ class MFECMemory:
         self.n_actions = check_int("n_actions", n_actions)
         self.capacity_per_action = check_int("capacity_per_action", capacity_per_action)
         self.n_neighbors = check_int("n_neighbors (k)", n_neighbors)
+        if self.capacity_per_action <= self.n_neighbors:
+            raise ValueError(
+                f"capacity_per_action={self.capacity_per_action} must exceed n_neighbors={self.n_neighbors} (k): a "
+                "kNN estimate needs more than k rows per action, so every unseen state would stay at +inf; raise "
+                "the capacity or lower k"
+            )
         self.tables = [
             MFECTable(self.key_dim, self.capacity_per_action, self.n_neighbors, knn_backend, rebuild_threshold)
             for _ in range(n_actions)

@@ -45,6 +45,13 @@ from torch.profiler import record_function
 from sb3_gcrl.common.runs import warn_if_learning_never_starts
 from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
 from sb3_gcrl.common.seeding import SeededGeneratorMixin
+from sb3_gcrl.common.validation import (
+    check_bool,
+    check_float,
+    check_int,
+    check_optional_int,
+    check_unit_interval,
+)
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
 from sb3_gcrl.morefree.networks import LatentState, frozen, lambda_returns, symlog
@@ -118,6 +125,8 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
     :param _init_setup_model: build the networks at construction.
     """
 
+    #: its replay streams keep ``info["executed_action"]`` (:func:`~sb3_gcrl.her.check_stores_executed_actions`)
+    stores_executed_actions: ClassVar[bool] = True
     policy_aliases: ClassVar[dict[str, type[MoReFreePolicy]]] = {
         "MultiInputPolicy": MoReFreePolicy,
         "MoReFreePolicy": MoReFreePolicy,
@@ -177,63 +186,41 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
             seed=seed,
             supported_action_spaces=(spaces.Box,),
         )
-        checks: list[tuple[str, Any, bool]] = [
-            ("buffer_size", buffer_size, buffer_size >= 2),
-            ("learning_starts", learning_starts, learning_starts >= 0),
-            ("batch_size", batch_size, batch_size >= 1),
-            ("batch_length", batch_length, batch_length >= 2),
-            ("train_ratio", train_ratio, train_ratio >= 1),
-            ("imagination_horizon", imagination_horizon, imagination_horizon >= 1),
-            ("imagination_starts", imagination_starts, imagination_starts is None or imagination_starts >= 1),
-            ("gamma", gamma, 0 <= gamma <= 1),
-            ("lambda_", lambda_, 0 <= lambda_ <= 1),
-            ("imagination_alpha", imagination_alpha, imagination_alpha is None or 0 <= imagination_alpha <= 1),
-            ("entropy_coef", entropy_coef, entropy_coef >= 0),
-            ("target_update_interval", target_update_interval, target_update_interval >= 1),
-            ("distance_pairs", distance_pairs, distance_pairs >= 1),
-            ("distance_neg_fraction", distance_neg_fraction, 0 <= distance_neg_fraction <= 1),
-            ("distance_window", distance_window, distance_window is None or distance_window >= 1),
-            ("distance_warmup", distance_warmup, distance_warmup >= 0),
-            ("peg_samples", peg_samples, peg_samples >= 2),
-            ("peg_iterations", peg_iterations, peg_iterations >= 1),
-            ("peg_elite_fraction", peg_elite_fraction, 0 < peg_elite_fraction <= 1),
-            ("peg_horizon", peg_horizon, peg_horizon is None or peg_horizon >= 1),
-        ]
-        for name, value, ok in checks:
-            if not ok:
-                raise ValueError(f"invalid {name}={value!r}")
-        self.buffer_size = int(buffer_size)
-        self.learning_starts = int(learning_starts)
-        self.batch_size = int(batch_size)
-        self.batch_length = int(batch_length)
-        self.train_ratio = int(train_ratio)
-        self.imagination_horizon = int(imagination_horizon)
-        self.imagination_starts = imagination_starts
-        self.gamma, self.lambda_ = float(gamma), float(lambda_)
-        self.imagination_alpha = imagination_alpha
-        self.entropy_coef = float(entropy_coef)
-        self.target_update_interval = int(target_update_interval)
-        self.expl_reward_scale = float(expl_reward_scale)
-        self.distance_pairs = int(distance_pairs)
-        self.distance_neg_fraction = float(distance_neg_fraction)
-        if not isinstance(distance_on_replay, bool):
-            raise TypeError(f"distance_on_replay must be a bool, got {distance_on_replay!r}")
-        self.distance_on_replay = distance_on_replay
-        self.distance_window = distance_window
-        self.distance_warmup = int(distance_warmup)
-        self.peg_samples = int(peg_samples)
-        self.peg_iterations = int(peg_iterations)
-        self.peg_elite_fraction = float(peg_elite_fraction)
-        self.peg_horizon = peg_horizon
-        if not isinstance(compile_train_step, bool):
-            raise TypeError(f"compile_train_step must be a bool, got {compile_train_step!r}")
-        self.compile_train_step = compile_train_step
-        if not isinstance(mixed_precision, bool):
-            raise TypeError(f"mixed_precision must be a bool, got {mixed_precision!r}")
-        self.mixed_precision = mixed_precision
-        if n_threads is not None and n_threads < 1:
-            raise ValueError(f"n_threads must be >= 1 or None, got {n_threads!r}")
-        self.n_threads = n_threads
+        check_float("learning_rate", learning_rate, minimum=0.0, exclusive_minimum=True)
+        self.buffer_size = check_int("buffer_size", buffer_size, minimum=2)
+        self.learning_starts = check_int("learning_starts", learning_starts, minimum=0)
+        self.batch_size = check_int("batch_size", batch_size)
+        self.batch_length = check_int("batch_length", batch_length, minimum=2)
+        n_envs = self.n_envs if self.env is not None else 1
+        if self.buffer_size // n_envs < self.batch_length:
+            raise ValueError(
+                f"buffer_size={self.buffer_size} keeps {self.buffer_size // n_envs} steps per env ({n_envs} envs), "
+                f"fewer than batch_length={self.batch_length}: no sequence could ever be sampled and nothing would be "
+                f"trained; raise buffer_size to at least {self.batch_length * n_envs} or lower batch_length"
+            )
+        self.train_ratio = check_int("train_ratio", train_ratio)
+        self.imagination_horizon = check_int("imagination_horizon", imagination_horizon)
+        self.imagination_starts = check_optional_int("imagination_starts", imagination_starts)
+        self.gamma = check_unit_interval("gamma", gamma)
+        self.lambda_ = check_unit_interval("lambda_", lambda_)
+        self.imagination_alpha = (
+            None if imagination_alpha is None else check_unit_interval("imagination_alpha", imagination_alpha)
+        )
+        self.entropy_coef = check_float("entropy_coef", entropy_coef, minimum=0.0)
+        self.target_update_interval = check_int("target_update_interval", target_update_interval)
+        self.expl_reward_scale = check_float("expl_reward_scale", expl_reward_scale, minimum=0.0)
+        self.distance_pairs = check_int("distance_pairs", distance_pairs)
+        self.distance_neg_fraction = check_unit_interval("distance_neg_fraction", distance_neg_fraction)
+        self.distance_on_replay = check_bool("distance_on_replay", distance_on_replay)
+        self.distance_window = check_optional_int("distance_window", distance_window)
+        self.distance_warmup = check_int("distance_warmup", distance_warmup, minimum=0)
+        self.peg_samples = check_int("peg_samples", peg_samples, minimum=2)
+        self.peg_iterations = check_int("peg_iterations", peg_iterations)
+        self.peg_elite_fraction = check_unit_interval("peg_elite_fraction", peg_elite_fraction, exclude_zero=True)
+        self.peg_horizon = check_optional_int("peg_horizon", peg_horizon)
+        self.compile_train_step = check_bool("compile_train_step", compile_train_step)
+        self.mixed_precision = check_bool("mixed_precision", mixed_precision)
+        self.n_threads = check_optional_int("n_threads", n_threads)
         self._n_updates = 0
         if _init_setup_model:
             self._setup_model()

@@ -22,6 +22,7 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
+from sb3_gcrl.common.validation import check_float, check_int, check_optional_int, check_unit_interval
 from sb3_gcrl.morefree.networks import (
     Actor,
     Critic,
@@ -129,22 +130,35 @@ class MoReFreePolicy(BasePolicy):
     ) -> None:
         super().__init__(observation_space, action_space, squash_output=True)
         check_spaces(observation_space, action_space)
-        if predict_burn_in < 1:
-            raise ValueError(f"predict_burn_in must be >= 1 (one posterior step), got {predict_burn_in}")
-        rates = {"actor_lr": actor_lr, "critic_lr": critic_lr, "distance_lr": distance_lr, "ensemble_lr": ensemble_lr}
-        for name, value in {**rates, "grad_clip": grad_clip}.items():
-            if not value > 0:
-                raise ValueError(f"{name} must be positive, got {value!r}")
-        sizes = {"deter": deter, "stoch": stoch, "rssm_hidden": rssm_hidden, "model_hidden": model_hidden}
-        sizes.update(model_layers=model_layers, head_hidden=head_hidden)
-        for name, value in sizes.items():
-            if int(value) < 1:
-                raise ValueError(f"{name} must be >= 1, got {value!r}")
-        if ensemble_hidden is not None and int(ensemble_hidden) < 1:
-            raise ValueError(f"ensemble_hidden must be >= 1 (or None), got {ensemble_hidden!r}")
-        if head_layers < 0 or weight_decay < 0:
-            raise ValueError(f"head_layers and weight_decay must be >= 0, got {head_layers}, {weight_decay}")
-        self.predict_burn_in = int(predict_burn_in)
+        self.predict_burn_in = check_int("predict_burn_in", predict_burn_in)  # at least one posterior step
+        rates = {
+            name: check_float(name, value, minimum=0.0, exclusive_minimum=True)
+            for name, value in {
+                "actor_lr": actor_lr,
+                "critic_lr": critic_lr,
+                "distance_lr": distance_lr,
+                "ensemble_lr": ensemble_lr,
+            }.items()
+        }
+        grad_clip = check_float("grad_clip", grad_clip, minimum=0.0, exclusive_minimum=True)
+        sizes = {
+            name: check_int(name, value)
+            for name, value in {
+                "deter": deter,
+                "stoch": stoch,
+                "rssm_hidden": rssm_hidden,
+                "model_hidden": model_hidden,
+                "model_layers": model_layers,
+                "head_hidden": head_hidden,
+            }.items()
+        }
+        head_hidden, stoch = sizes["head_hidden"], sizes["stoch"]
+        head_layers = check_int("head_layers", head_layers, minimum=0)
+        ensemble_size = check_int("ensemble_size", ensemble_size, minimum=2)  # disagreement = spread of members
+        ensemble_hidden = check_optional_int("ensemble_hidden", ensemble_hidden)
+        weight_decay = check_float("weight_decay", weight_decay, minimum=0.0)
+        kl_balance = check_unit_interval("kl_balance", kl_balance)
+        free_nats = check_float("free_nats", free_nats, minimum=0.0)
         self.lr_schedule = lr_schedule
         self.learning_rates = rates
         self.weight_decay, self.grad_clip = float(weight_decay), float(grad_clip)
@@ -165,11 +179,11 @@ class MoReFreePolicy(BasePolicy):
             self.state_dim,
             self.goal_dim,
             action_dim,
-            hidden=model_hidden,
-            layers=model_layers,
-            deter=deter,
-            stoch=stoch,
-            rssm_hidden=rssm_hidden,
+            hidden=sizes["model_hidden"],
+            layers=sizes["model_layers"],
+            deter=sizes["deter"],
+            stoch=sizes["stoch"],
+            rssm_hidden=sizes["rssm_hidden"],
             kl_balance=kl_balance,
             free_nats=free_nats,
         )

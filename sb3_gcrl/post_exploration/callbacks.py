@@ -7,6 +7,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_gcrl.callbacks.segments import GoalSuccessLog
 from sb3_gcrl.common.validation import check_int
+from sb3_gcrl.her.executed_action import check_stores_executed_actions
 from sb3_gcrl.post_exploration.metrics import coverage, training_visit_counts, visitation_entropy
 from sb3_gcrl.wrappers.mode import switch_training_envs
 
@@ -46,13 +47,8 @@ class PostExplorationCallback(BaseCallback):
                 "PostExplorationCallback: the training env is not wrapped in "
                 "sb3_gcrl.post_exploration.PostExplorationWrapper; add it (e.g. env_wrapper in the RL-Zoo YAML)"
             )
-        buffer = getattr(self.model, "replay_buffer", None)
-        if self.require_executed_actions and not hasattr(buffer, "executed_actions"):
-            raise TypeError(
-                "PostExplorationCallback: the replay buffer stores the agent's actions, not the random actions "
-                "executed during post-exploration; use replay_buffer_class=sb3_gcrl.her.ExecutedActionHerReplayBuffer "
-                "(YAML: \"__import__('sb3_gcrl.her').her.ExecutedActionHerReplayBuffer\")"
-            )
+        if self.require_executed_actions:
+            check_stores_executed_actions(self.model, "PostExplorationCallback", "post-exploration")
         switch_training_envs(
             env, "sb3_gcrl.post_exploration.PostExplorationCallback", "sb3_gcrl.post_exploration.PostExplorationWrapper"
         )

@@ -42,6 +42,7 @@ from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
+from sb3_gcrl.common.validation import FiniteRewardsMixin
 from sb3_gcrl.her import check_n_sampled_goal
 
 #: the env attribute that tells a forward-backward env (``ForwardBackwardWrapper``) apart
@@ -115,7 +116,7 @@ class _PhaseRouter:
                 )
 
 
-class ForwardBackwardSAC(ModelFileMixin, ClassNamedRunsMixin, SAC):
+class ForwardBackwardSAC(ModelFileMixin, ClassNamedRunsMixin, FiniteRewardsMixin, SAC):
     """A forward SAC (this object) and a backward SAC (:attr:`backward`) alternating by the env's phases.
 
     Use it on a goal env wrapped in :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` (``segment_length`` = phase length)

@@ -27,6 +27,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.env_util import unwrap_wrapper
 
+from sb3_gcrl.common.validation import check_bool
 from sb3_gcrl.goals.schedulers import EvaluationGoalScheduler
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
@@ -96,7 +97,7 @@ class ForwardBackwardWrapper(GoalCommandWrapper):
         )
         super().__init__(env, "evaluation", None, success_distance, task_goal_capacity)
         self.scheduler = ForwardBackwardScheduler(self.task_goals)
-        self.end_forward_on_success = bool(end_forward_on_success)
+        self.end_forward_on_success = check_bool("end_forward_on_success", end_forward_on_success)
         #: steps taken in each phase (training mode)
         self.forward_backward_steps = dict.fromkeys(PHASES, 0)
 

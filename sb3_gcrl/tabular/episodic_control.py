@@ -62,6 +62,7 @@ class TabularEpisodicControl(EpisodeRecordingMixin, TabularAlgorithm):
         infos: list[dict[str, Any]],
     ) -> None:
         # No replay: record the step, update the table at episode ends.
+        self._check_rewards(reward)
         states, actions = np.asarray(self._last_obs).reshape(-1), np.asarray(buffer_action).reshape(-1)
         gamma = self.gamma if self.ec_gamma is None else self.ec_gamma
         for episode in self._episodes.record(states, actions, reward, dones, infos):

@@ -41,7 +41,7 @@ from sb3_gcrl.common.episodes import EpisodeRecorder, truncated_ends
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.seeding import SeededGeneratorMixin, seeded_generator
-from sb3_gcrl.common.validation import check_bool, check_unit_interval
+from sb3_gcrl.common.validation import FiniteRewardsMixin, check_bool, check_unit_interval
 from sb3_gcrl.two_memory.buffers import SourceTaggedReplayBuffer
 from sb3_gcrl.two_memory.schedules import (
     DEFAULT_P_EC_SCHEDULE,
@@ -428,7 +428,7 @@ class TwoMemoryDispatcher:
             logger.record("two_memory/buffer_ec_fraction", replay_buffer.source_fraction(EPISODIC))
 
 
-class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRunsMixin):
+class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRunsMixin, FiniteRewardsMixin):
     """Algorithm side of 2M for an SB3 ``OffPolicyAlgorithm`` whose policy is a :class:`TwoMemoryDispatchMixin`.
 
     Mix in first (``class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN)``). It

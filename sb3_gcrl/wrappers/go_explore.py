@@ -41,6 +41,7 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.env_util import unwrap_wrapper
 
+from sb3_gcrl.common.validation import check_bool, check_int
 from sb3_gcrl.goals.schedulers import GoalScheduler
 from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
 from sb3_gcrl.wrappers.reset_free import ResetFreeWrapper
@@ -182,17 +183,15 @@ class GoExploreWrapper(GoalCommandWrapper):
                 f"eval_horizon given twice with different values: GoExploreWrapper(eval_horizon={eval_horizon}) but "
                 f"ResetFreeWrapper(eval_horizon={below}) below it; give it once, to ResetFreeWrapper"
             )
-        eval_horizon = below if eval_horizon is None else eval_horizon
+        eval_horizon = below if eval_horizon is None else check_int("eval_horizon", eval_horizon, minimum=2)
         if (go_steps is None or explore_steps is None) and eval_horizon is None:
             raise ValueError(
                 "GoExploreWrapper needs eval_horizon (H_G = H_E = eval_horizon // 2): give it to the ResetFreeWrapper "
                 "below (or to GoExploreWrapper), or give go_steps and explore_steps"
             )
-        half = None if eval_horizon is None else max(1, int(eval_horizon) // 2)
-        self.go_steps = int(go_steps if go_steps is not None else half)  # type: ignore[arg-type]
-        self.explore_steps = int(explore_steps if explore_steps is not None else half)  # type: ignore[arg-type]
-        if self.go_steps < 1 or self.explore_steps < 0:
-            raise ValueError(f"need go_steps >= 1 and explore_steps >= 0, got {self.go_steps}, {self.explore_steps}")
+        half = None if eval_horizon is None else int(eval_horizon) // 2
+        self.go_steps = check_int("go_steps", go_steps if go_steps is not None else half)
+        self.explore_steps = check_int("explore_steps", explore_steps if explore_steps is not None else half, 0)
         self._explore_policy: ExplorePolicy | None
         if explore_policy == "random":
             self._explore_policy = self._random_action
@@ -206,7 +205,7 @@ class GoExploreWrapper(GoalCommandWrapper):
             )
         #: whether the Explore phase executes the agent's action (``explore_policy="agent"``)
         self.agent_explores = self._explore_policy is None
-        self.end_go_on_success = end_go_on_success
+        self.end_go_on_success = check_bool("end_go_on_success", end_go_on_success)
         #: phase of the next training step: ``"go"`` or ``"explore"``
         self.phase = "go"
         self._phase_steps = 0
@@ -230,6 +229,12 @@ class GoExploreWrapper(GoalCommandWrapper):
         if not self.training or self.phase == "go":
             return ACTING_GOAL
         return ACTING_EXPLORER if self.agent_explores else ACTING_WRAPPER
+
+    @property
+    def replaces_actions(self) -> bool:
+        """Whether the Explore phase executes the wrapper's own actions instead of the agent's (a replay buffer must
+        then store ``info["executed_action"]``: :class:`~sb3_gcrl.her.ExecutedActionHerReplayBuffer`)."""
+        return not self.agent_explores and self.explore_steps > 0
 
     @property
     def agent_goal_scheduler(self) -> AgentGoalScheduler | None:
