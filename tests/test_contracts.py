@@ -49,6 +49,8 @@ from sb3_gcrl.algorithms import ALGORITHMS, load_algorithm
 from sb3_gcrl.common.saving import SAVED_BY_ENTRY, ModelFileError
 
 N_STEPS = 300
+# the "ibc" case trains on a plain goal env on purpose (its phases are tested in tests/test_ibc.py)
+pytestmark = pytest.mark.filterwarnings("ignore:IBC. the training env is not wrapped")
 
 
 @dataclass(frozen=True)

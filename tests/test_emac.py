@@ -279,6 +279,8 @@ def test_learns_growing_tree():
         ({"knn_backend": "annoy"}, "knn_backend"),
         ({"policy_kwargs": {"n_neighbors": 3}}, "pass n_neighbors to EMAC itself"),
         ({"replay_buffer_class": HerReplayBuffer}, "HerReplayBuffer"),
+        ({"policy_delay": 0}, "policy_delay must be >= 1"),  # TD3 would divide by it at the first update
+        ({"target_noise_clip": -1.0}, "target_noise_clip must be >= 0"),
     ],
 )
 def test_bad_settings_fail_at_construction(kwargs: dict[str, Any], match: str):

@@ -252,6 +252,11 @@ def _save_other(path: Path) -> Path:
 
 
 # -------------------------------------------------------------------------------------------------------------- errors
+def test_a_plain_goal_env_warns_that_ibc_trains_plain_sac():
+    with pytest.warns(UserWarning, match="not wrapped in sb3_gcrl.reset_free_baselines.ibc_go_explore"):
+        IBC("MultiInputPolicy", make_vec_env(ENV_ID), learning_starts=30, policy_kwargs=TINY)
+
+
 def test_errors_name_the_fix():
     with pytest.raises(ValueError, match="value_samples"):
         make_model(value_samples=0)

@@ -160,6 +160,10 @@ def test_bad_input_raises_clear_errors() -> None:
         TabularIMGEP("TabularGoalPolicy", "CartPole-v1")
     with pytest.raises(ValueError, match="learning_rate"):
         make_model(learning_rate=1.5)
+    with pytest.raises(ValueError, match=r"learning_rate \(schedule at progress_remaining=1.0\) must be a number in"):
+        make_model(learning_rate=lambda progress_remaining: 5.0)  # a schedule is checked as a constant is
+    with pytest.raises(ValueError, match="stats_window_size must be >= 1"):
+        make_model(stats_window_size=0)
     with pytest.raises(ValueError, match="tau"):
         make_model(tau=float("nan"))
     with pytest.raises(TypeError, match="post_exploration_rule"):

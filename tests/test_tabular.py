@@ -176,6 +176,11 @@ def test_clear_errors():
         TabularQLearning(env=windy(), exploration_initial_eps=1.5)
     with pytest.raises(ValueError, match="gamma"):
         TabularEpisodicControl(env=windy(), gamma=2.0)
+    # a NaN start value would read as an unvisited entry forever
+    with pytest.raises(ValueError, match="initial_value must be a finite number"):
+        TabularQLearning(env=windy(), policy_kwargs={"initial_value": float("nan")})
+    with pytest.raises(ValueError, match="unseen_value must be a finite number"):
+        TabularEpisodicControl(env=windy(), policy_kwargs={"unseen_value": float("inf")})
 
 
 # ------------------------------------------------------------------------------------------------ reliability

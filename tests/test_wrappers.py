@@ -140,6 +140,25 @@ def run(env: gym.Env, n_steps: int, action: float = 0.0) -> list[tuple[bool, boo
     return out
 
 
+def test_an_explore_policy_that_returns_no_action_of_the_env_is_named() -> None:
+    def wrong(obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
+        return np.full(7, 0.05)  # 7-D for a 1-D action space
+
+    env = GoExploreWrapper(
+        ResetFreeWrapper(LineGoalEnv(), hard_reset_every=1000, eval_horizon=10),
+        "env_default",
+        go_steps=1,
+        explore_steps=2,
+        explore_policy=wrong,
+    )
+    env.reset(seed=0)
+    env.set_training_mode(True)
+    env.reset()
+    env.step(np.zeros(1, dtype=np.float32))  # the Go phase: the agent's action
+    with pytest.raises(ValueError, match=r"explore_policy returned array\(\[0.05, .*not an action of the env's Box"):
+        env.step(np.zeros(1, dtype=np.float32))
+
+
 def test_interventions_and_segments() -> None:
     env = ResetFreeWrapper(LineGoalEnv(), hard_reset_every=50, segment_length=20)
     env.reset(seed=0)
@@ -323,6 +342,8 @@ def test_is_success_adapter() -> None:
     env.reset(seed=0)
     info = env.step(env.action_space.sample())[4]
     assert info["is_success"] == info["success"]
+    with pytest.raises(ValueError, match="success_distance must be > 0.0, got -1.0"):
+        IsSuccessWrapper(gym.make("PointMaze_UMaze-v3"), success_distance=-1.0)  # never a success
     env = IsSuccessWrapper(gym.make("PointMaze_UMaze-v3"), source_key="missing")
     env.reset(seed=0)
     with pytest.raises(KeyError, match="success_distance"):

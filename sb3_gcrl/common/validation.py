@@ -6,7 +6,8 @@ construction with the same message wherever it enters (``CEC(capacity=1.7)``, ``
 ``policy_kwargs``, a replay buffer's ``n_sampled_goal``), and a corrupted saved memory fails with what is wrong
 with it.
 
-* numbers: :func:`check_int`, :func:`check_optional_int`, :func:`check_float`, :func:`check_unit_interval`;
+* numbers: :func:`check_int`, :func:`check_optional_int`, :func:`check_float`, :func:`check_unit_interval`,
+  :func:`check_step_size`;
 * switches and names: :func:`check_bool`, :func:`check_choice`;
 * HER: :func:`check_n_sampled_goal`;
 * data: :func:`check_finite_rewards`, :func:`check_finite_returns`, :func:`check_saved_rows`;
@@ -103,6 +104,26 @@ def check_unit_interval(name: str, value: Any, exclude_zero: bool = False) -> fl
         return check_float(name, value, 0.0, 1.0, exclusive_minimum=exclude_zero)
     except (TypeError, ValueError) as error:
         raise ValueError(f"{name} must be a number in {'(0' if exclude_zero else '[0'}, 1], got {value!r}") from error
+
+
+def check_step_size(name: str, value: Any) -> None:
+    """Check a tabular step size ``Q <- Q + lr * (target - Q)``, a constant or a schedule of the remaining progress
+    (SB3's and RL-Zoo's ``learning_rate``): in (0, 1], since 0 never changes the table and above 1 each update
+    overshoots its target and the table diverges. A schedule is checked at the start and the end of training.
+
+    :param name: parameter name used in the error message.
+    :param value: the step size, or a callable ``progress_remaining -> step size``.
+    :raises ValueError: naming ``name`` (and the progress of a schedule), for a value outside (0, 1].
+    """
+    if not callable(value):
+        check_unit_interval(name, value, exclude_zero=True)
+        return
+    for progress_remaining in (1.0, 0.0):
+        check_unit_interval(
+            f"{name} (schedule at progress_remaining={progress_remaining})",
+            value(progress_remaining),
+            exclude_zero=True,
+        )
 
 
 def check_bool(name: str, value: Any) -> bool:

@@ -135,9 +135,9 @@ class EMAC(EpisodeRecordingMixin, ModelFileMixin, ClassNamedRunsMixin, FiniteRew
             policy,
             env,
             learning_starts=learning_starts,
-            policy_delay=policy_delay,
-            target_policy_noise=target_policy_noise,
-            target_noise_clip=target_noise_clip,
+            policy_delay=check_int("policy_delay", policy_delay),
+            target_policy_noise=check_float("target_policy_noise", target_policy_noise, minimum=0.0),
+            target_noise_clip=check_float("target_noise_clip", target_noise_clip, minimum=0.0),
             policy_kwargs=policy_kwargs,
             **kwargs,
         )

@@ -31,7 +31,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from sb3_gcrl.common.metrics import coverage, visitation_entropy
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.seeding import SeededGeneratorMixin
-from sb3_gcrl.common.validation import check_bool, check_float, check_unit_interval
+from sb3_gcrl.common.validation import check_bool, check_float, check_int, check_step_size, check_unit_interval
 from sb3_gcrl.goals.goal_space import BinnedGoalSpace
 from sb3_gcrl.imgep.policies import TabularGoalPolicy
 from sb3_gcrl.imgep.tabular_goal_env import TabularGoalEnv
@@ -101,8 +101,7 @@ class TabularIMGEP(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm, GoalExpl
         gamma = check_unit_interval("gamma", gamma)
         epsilon = check_unit_interval("epsilon", epsilon)
         relabel_fraction = check_unit_interval("relabel_fraction", relabel_fraction)
-        if not callable(learning_rate):  # RL-Zoo passes a schedule; 0 would never change the table (Eq. 6.2)
-            check_unit_interval("learning_rate", learning_rate, exclude_zero=True)
+        check_step_size("learning_rate", learning_rate)  # Eq. 6.2's step size (RL-Zoo passes a schedule)
         tau = check_float("tau (Eq. 6.5; 0 = uniform)", tau, minimum=0.0)
         if isinstance(post_exploration_rule, dict):
             post_exploration_rule = make_post_exploration_rule(**post_exploration_rule)
@@ -118,7 +117,7 @@ class TabularIMGEP(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm, GoalExpl
             env,
             learning_rate=learning_rate,
             policy_kwargs=policy_kwargs,
-            stats_window_size=stats_window_size,
+            stats_window_size=check_int("stats_window_size", stats_window_size),
             tensorboard_log=tensorboard_log,
             verbose=verbose,
             device=device,

@@ -21,6 +21,7 @@ transition. On an env without that wrapper every step is a forward step (plain g
 
 from __future__ import annotations
 
+import warnings
 from typing import Any, ClassVar
 
 import numpy as np
@@ -92,6 +93,13 @@ class IBC(ForwardBackwardSAC):
             raise TypeError("IBC's agents are SAC: Box actions only")
         # whether the env commands IBC's segments (looked up once here, not at every step)
         self._commands_segments = env.has_attr("goal_kind") and env.has_attr("training")
+        if not self._commands_segments:
+            warnings.warn(
+                "IBC: the training env is not wrapped in sb3_gcrl.reset_free_baselines.ibc_go_explore, so every step "
+                "is the forward agent's and IBC trains as plain goal-conditioned SAC (no backward agent, no "
+                "curriculum); wrap the env with ibc_go_explore (the env_wrapper of the shipped ibc.yml)",
+                stacklevel=3,
+            )
         base = env.unwrapped if isinstance(env, VecEnvWrapper) else env
         if self._commands_segments and not isinstance(base, DummyVecEnv):
             raise TypeError(

@@ -16,6 +16,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 
 from sb3_gcrl.common.seeding import draw_seed, generator_state, restore_generator, seeded_generator
+from sb3_gcrl.common.validation import check_float
 from sb3_gcrl.memory.mfec_memory import argmax_random_ties
 from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatchMixin
 
@@ -76,7 +77,7 @@ class TabularTablePolicy(TabularBasePolicy):
     ) -> None:
         super().__init__(observation_space, action_space)
         n_states, n_actions = check_tabular_spaces(observation_space, action_space, type(self).__name__)
-        setattr(self, self.value_parameter, float(value))
+        setattr(self, self.value_parameter, check_float(self.value_parameter, value))
         setattr(self, self.table_name, np.full((n_states, n_actions), initial_entry, dtype=np.float64))
         #: generator of the random tie-breaking
         self.rng = np.random.default_rng(draw_seed(action_space))
@@ -142,7 +143,7 @@ class TabularQPolicy(TabularTablePolicy):
         lr_schedule: Schedule | None = None,
         initial_value: float = 0.0,
     ) -> None:
-        super().__init__(observation_space, action_space, initial_value, float(initial_value))
+        super().__init__(observation_space, action_space, initial_value, check_float("initial_value", initial_value))
 
 
 class TabularECPolicy(TabularTablePolicy):

@@ -14,7 +14,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.seeding import SeededGeneratorMixin
-from sb3_gcrl.common.validation import FiniteRewardsMixin, check_int, check_unit_interval
+from sb3_gcrl.common.validation import FiniteRewardsMixin, check_int, check_step_size, check_unit_interval
 from sb3_gcrl.tabular.policies import check_tabular_spaces
 
 SelfTabularAlgorithm = TypeVar("SelfTabularAlgorithm", bound="TabularAlgorithm")
@@ -49,15 +49,7 @@ def check_tabular_hyperparameters(
     :raises ValueError: for the first parameter out of range.
     :raises TypeError: for an integer parameter that is not a number.
     """
-    if callable(learning_rate):
-        for progress_remaining in (1.0, 0.0):
-            check_unit_interval(
-                f"learning_rate (schedule at progress_remaining={progress_remaining})",
-                learning_rate(progress_remaining),
-                exclude_zero=True,
-            )
-    else:
-        check_unit_interval("learning_rate", learning_rate, exclude_zero=True)
+    check_step_size("learning_rate", learning_rate)
     check_unit_interval("gamma", gamma)
     check_unit_interval("exploration_fraction", exploration_fraction)
     check_unit_interval("exploration_initial_eps", exploration_initial_eps)

@@ -343,6 +343,14 @@ class GoExploreWrapper(GoalCommandWrapper):
             )
         if phase == "explore" and self._explore_policy is not None:
             action = self._explore_policy(self._obs, self._rng)  # type: ignore[arg-type]
+            if self._explore_policy != self._random_action and not self.action_space.contains(
+                np.asarray(action, dtype=self.action_space.dtype)
+            ):
+                raise ValueError(
+                    f"explore_policy returned {action!r}, which is not an action of the env's {self.action_space}: "
+                    "return an action of that shape, within its bounds (the env would run it, the buffer would "
+                    "store it clipped)"
+                )
         obs, reward, terminated, truncated, info = super()._training_step(action)
         self.phase_steps_total[phase] += 1
         self._phase_steps += 1

@@ -16,6 +16,8 @@ from gymnasium import spaces
 from stable_baselines3.common.env_util import unwrap_wrapper
 from stable_baselines3.common.monitor import Monitor
 
+from sb3_gcrl.common.validation import check_float
+
 GOAL_KEYS = ("observation", "achieved_goal", "desired_goal")
 
 
@@ -82,7 +84,11 @@ class IsSuccessWrapper(
         record_constructor_args(self, locals())
         super().__init__(env)
         self.source_key = source_key
-        self.success_distance = success_distance
+        self.success_distance = (
+            None
+            if success_distance is None
+            else check_float("success_distance", success_distance, minimum=0.0, exclusive_minimum=True)
+        )
         monitor = unwrap_wrapper(env, Monitor)
         if monitor is not None and not isinstance(monitor.env, IsSuccessWrapper):
             # the Monitor reads info_keywords from the env it wraps: provide the key there too
