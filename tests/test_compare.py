@@ -504,6 +504,29 @@ def test_report_gives_wall_and_cpu_time_per_method_and_says_where_an_older_run_d
     assert "| n | 1 | 40 s | not recorded | not recorded |" in report
 
 
+def test_report_adds_the_return_where_the_reward_pays_for_more_than_the_success(tmp_path):
+    """Sub-goals paying 0.5: a method that always takes one has success 0 but return 0.5, which the report shows."""
+
+    def rows(success: float, ret: float) -> list[dict[str, float]]:
+        return [{"timesteps": t, "mean_return": ret, "success_rate": success} for t in (0, 10)]
+
+    specs = [make_spec(method=m, seed=seed) for m in ("subgoal", "goal") for seed in range(3)]
+    for spec in specs:
+        result = rows(0.0, 0.5) if spec.method == "subgoal" else rows(1.0, 1.0)
+        write_run_result(tmp_path / "runs" / spec.relative_dir, RunResult(spec, "finished", result, 1.0))
+    summary = summarize(tmp_path, specs)
+    assert summary.return_summary.set_index("method")["final"].to_dict() == {"subgoal": 0.5, "goal": 1.0}
+    write_outputs(tmp_path, summary, "t", "", 1.0)
+    report = (tmp_path / "report.md").read_text()
+    assert "### Evaluation return" in report
+    assert "| subgoal | 3/3  | evaluation return | 0.50 [0.50, 0.50] |" in report
+    # where the return is the success, nothing is added
+    for spec in specs:
+        write_run_result(tmp_path / "runs" / spec.relative_dir, RunResult(spec, "finished", rows(1.0, 1.0), 1.0))
+    summary = summarize(tmp_path, specs)
+    assert summary.return_table == "" and summary.return_summary.empty
+
+
 GOAL_SAC_CONFIG = """
 GCRL/PointUMazeGoal-v0:
   n_timesteps: 200

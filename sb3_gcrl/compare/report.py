@@ -58,6 +58,9 @@ class Summary:
     :param all_goals_scores: per-run final and AUC of the all-goals success.
     :param all_goals_summary: their aggregates per (env, method).
     :param all_goals_table: ``all_goals_summary`` as Markdown ("" when no run has all-goals evaluations).
+    :param return_summary: aggregates of the evaluation return per (env, method), for the envs scored by success rate
+        whose return is not the success (e.g. sub-goals that pay part of the reward); empty when there is none.
+    :param return_table: ``return_summary`` as Markdown ("" when it is empty).
     """
 
     curves: pd.DataFrame
@@ -72,6 +75,8 @@ class Summary:
     all_goals_scores: pd.DataFrame = field(default_factory=pd.DataFrame)
     all_goals_summary: pd.DataFrame = field(default_factory=pd.DataFrame)
     all_goals_table: str = ""
+    return_summary: pd.DataFrame = field(default_factory=pd.DataFrame)
+    return_table: str = ""
 
 
 def _format_interval(value: float, low: float, high: float, digits: int) -> str:
@@ -91,7 +96,9 @@ def format_table(summary: pd.DataFrame, metrics: dict[str, str]) -> str:
     lines = []
     for row in summary.itertuples(index=False):
         metric = metrics[row.env]
-        digits = 2 if metric in SUCCESS_METRICS else 1
+        bounds = (row.final_low, row.final_high, row.auc_low, row.auc_high)
+        small = all(abs(bound) < 10 for bound in bounds if not math.isnan(bound))
+        digits = 2 if metric in SUCCESS_METRICS or small else 1  # returns of 0-1 rewards need the second digit
         solved_at = "-" if math.isnan(row.median_solved_at) else f"{row.median_solved_at:,.0f}"
         lines.append(
             [
@@ -161,7 +168,7 @@ def summarize(
         failed.append((spec, error, run_dir / LOG_FILE))
     curves = load_curves(finished)
     planned = pd.Series([(s.env_id, s.method) for s in specs]).value_counts().to_dict()
-    scores, summaries, metrics = [], [], {}
+    scores, summaries, metrics, return_summaries = [], [], {}, []
     for env_id, env_curves in curves.groupby("env", sort=False):
         metric = metrics[env_id] = choose_metric(env_curves) if metric_choice == "auto" else metric_choice
         if env_curves[metric].isna().any():
@@ -174,6 +181,10 @@ def summarize(
         env_scores = run_scores(env_curves, metric, final_window, threshold)
         scores.append(env_scores.assign(metric=metric))
         summaries.append(aggregate_scores(env_scores, min_runs_for_iqm, planned_runs=planned))
+        if metric == "success_rate" and not np.allclose(env_curves["mean_return"], env_curves["success_rate"]):
+            # the reward pays for more than the success: the return is the other half of the picture
+            return_scores = run_scores(env_curves, "mean_return", final_window, None)
+            return_summaries.append(aggregate_scores(return_scores, min_runs_for_iqm, planned_runs=planned))
     # tables list envs and methods in the order the user gave them (groupby sorts them alphabetically)
     order = {key: rank for rank, key in enumerate(dict.fromkeys((s.env_id, s.method) for s in specs))}
     curves = _in_order(curves, order)
@@ -182,6 +193,11 @@ def summarize(
     table = format_table(summary, metrics) if len(summary) else "(no finished runs)"
     run_times = pd.DataFrame(times, columns=["env", "method", "wall_time_s", "cpu_time_s"])
     result = Summary(curves, scores_table, summary, metrics, failed, table, run_times, run_dirs)
+    if return_summaries:
+        result.return_summary = _in_order(pd.concat(return_summaries, ignore_index=True), order)
+        result.return_table = format_table(
+            result.return_summary, dict.fromkeys(result.return_summary["env"], "mean_return")
+        )
     if all_goals_runs:
         threshold = SUCCESS_THRESHOLD if solve_threshold is None else solve_threshold
         result.all_goals_curves = _in_order(load_curves(all_goals_runs), order)
@@ -291,6 +307,17 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
         "median over those runs of the first evaluation from which it stayed there.",
         "",
     ]
+    if summary.return_table:
+        lines += [
+            "### Evaluation return",
+            "",
+            "On these envs the reward pays for more than reaching the goal (e.g. sub-goals), so the success rate "
+            "above does not tell the whole story: the same table for the evaluation return (*solved* is not "
+            "counted for returns).",
+            "",
+            summary.return_table,
+            "",
+        ]
     lines += _improvement_section(summary)
     all_goals_files, all_goals_md = _all_goals_outputs(output, summary)
     written += all_goals_files
