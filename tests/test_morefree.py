@@ -18,6 +18,7 @@ from torch.distributions import Normal
 
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
+from sb3_gcrl.envs.growing_tree import GrowingTreeGoalEnv
 from sb3_gcrl.morefree import MoReFree, SequenceReplayBuffer, morefree_go_explore
 from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler
 from sb3_gcrl.morefree.networks import (
@@ -29,6 +30,7 @@ from sb3_gcrl.morefree.networks import (
     WorldModel,
     frozen,
     lambda_returns,
+    symexp,
     symlog,
 )
 from sb3_gcrl.wrappers import GOAL_REQUEST_KEY, GoExploreWrapper, ResetFreeWrapper
@@ -50,11 +52,6 @@ TINY_ALGO = {
 
 def tiny(env: Any, seed: int = 0, **overrides: Any) -> MoReFree:
     return MoReFree("MultiInputPolicy", env, seed=seed, **{**TINY_ALGO, **overrides})
-
-
-def symexp(x: th.Tensor) -> th.Tensor:
-    """Inverse of :func:`symlog`."""
-    return th.sign(x) * th.expm1(th.abs(x))
 
 
 class ExplorerCheck(BaseCallback):
@@ -830,6 +827,97 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
     assert critic_calibration(model, 64) == pytest.approx(1 / 3, rel=1e-5)
     monkeypatch.setattr(model.policy.critic_g, "forward", lambda feat, goal: th.zeros(feat.shape[:-1]))
     assert critic_calibration(model, 64) == 0.0
+
+
+def growing_tree_episodes(goals: tuple[float, ...], steps: int = 12) -> list[gym.Env]:
+    return [gym.make("GCRL/GrowingTreeGoal-v0", goal=g, terminate_at_goal=True, max_episode_steps=steps) for g in goals]
+
+
+def test_evaluation_rollouts_act_as_evaluate_policy_and_match_a_hand_computation(monkeypatch: pytest.MonkeyPatch):
+    from sb3_gcrl.morefree.diagnostics import ROLLOUT_FIGURES, evaluation_rollouts
+
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), learning_starts=30)
+    model.learn(120)
+    goals = (0.3, 0.75, -1.0)
+    # (a) the real episodes are those of predict with episode_start (what evaluate_policy runs), trained nets
+    figures = evaluation_rollouts(model, growing_tree_episodes(goals), seed=5)
+    assert list(figures) == list(ROLLOUT_FIGURES)
+    successes, finals = [], []
+    for i, env in enumerate(growing_tree_episodes(goals)):
+        obs, _ = env.reset(seed=5 + i)
+        start, done = True, False
+        while not done:
+            action, _ = model.predict(obs, episode_start=np.array([start]), deterministic=True)
+            obs, _, terminated, truncated, info = env.step(action)
+            start, done = False, terminated or truncated
+        successes.append(info["is_success"])
+        finals.append(abs(obs["achieved_goal"][0] - obs["desired_goal"][0]))
+    assert figures["rollout_success"] == pytest.approx(np.mean(successes))
+    assert figures["rollout_final_distance"] == pytest.approx(np.mean(finals), abs=1e-6)
+    assert np.isnan(figures["rollout_imagined_success"])  # GrowingTree's task states no success radius
+    # (b) known pieces: pi_G always grows by the full 0.1, the decoder always says 0.5, D is the true distance.
+    # From height 0 the episodes toward 0.3 / 0.75 / -1.0 end at 3 / 7 / 12 steps (success within 0.1; the last by
+    # the time limit).
+    monkeypatch.setattr(
+        model.policy.actor_g,
+        "act",
+        lambda feat, goal, deterministic=False: (th.ones(len(feat), 1), th.zeros(len(feat))),
+    )
+    monkeypatch.setattr(
+        model.policy.world_model, "decode_goal", lambda feat: symlog(th.full((*feat.shape[:-1], 1), 0.5))
+    )
+    monkeypatch.setattr(model.policy.distance, "forward", lambda a, g: (symexp(a) - symexp(g)).abs().sum(-1))
+    model.imagination_horizon = 4
+    figures = evaluation_rollouts(model, growing_tree_episodes(goals), success_threshold=0.3)
+    lengths = (3, 7, 12)
+    paths = [0.1 * np.arange(n + 1) for n in lengths]
+    assert figures["rollout_success"] == pytest.approx(2 / 3)
+    assert figures["rollout_final_distance"] == pytest.approx(np.mean([0.0, 0.05, 2.2]), abs=1e-5)
+    # imagined: every episode ends at the decoded 0.5, within 0.3 of the goals 0.3 and 0.75 only
+    assert figures["rollout_imagined_success"] == pytest.approx(2 / 3)
+    assert figures["rollout_optimism"] == 0.0
+    assert figures["rollout_imagined_final_distance"] == pytest.approx(np.mean([0.2, 0.25, 1.5]), abs=1e-5)
+    reconstruction = np.concatenate([np.abs(0.5 - path[:-1]) for path in paths])
+    assert figures["rollout_reconstruction_error"] == pytest.approx(reconstruction.mean(), abs=1e-5)
+    ahead = np.concatenate([np.abs(0.5 - path[4:]) for path in paths])  # states 4 steps after a posterior
+    assert figures["rollout_model_error"] == pytest.approx(ahead.mean(), abs=1e-5)
+    assert figures["rollout_distance_correlation"] == pytest.approx(1.0)
+    # a model that puts every episode at the goal toward 1.5 is optimistic where the env disagrees
+    figures = evaluation_rollouts(model, growing_tree_episodes((1.5, 0.5)), success_threshold=0.3)
+    assert figures["rollout_success"] == pytest.approx(0.5)  # 1.5 is out of reach in 12 steps of 0.1
+    assert figures["rollout_imagined_success"] == pytest.approx(0.5)
+    assert figures["rollout_optimism"] == 0.0
+    monkeypatch.setattr(
+        model.policy.world_model, "decode_goal", lambda feat: symlog(th.full((*feat.shape[:-1], 1), 1.5))
+    )
+    figures = evaluation_rollouts(model, growing_tree_episodes((1.5, 0.5)), success_threshold=0.3)
+    assert figures["rollout_imagined_success"] == pytest.approx(0.5) and figures["rollout_optimism"] == pytest.approx(
+        0.5
+    )
+    with pytest.raises(ValueError, match="at least one env"):
+        evaluation_rollouts(model, [])
+
+
+def test_diagnostics_callback_runs_the_evaluation_episodes_of_the_training_env_or_names_the_fix():
+    from sb3_gcrl.morefree.diagnostics import ROLLOUT_FIGURES, MoReFreeDiagnosticsCallback
+
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), learning_starts=30)
+    callback = MoReFreeDiagnosticsCallback(diagnose_freq=50, n=16, rollout_episodes=2)
+    model.learn(60, callback=callback)
+    assert set(ROLLOUT_FIGURES) <= set(callback.history[-1][1])
+    own = make_vec_env(lambda: gym.wrappers.TimeLimit(GrowingTreeGoalEnv(), 50), n_envs=1, seed=0)
+    with pytest.raises(ValueError, match="rollout_env"):
+        tiny(own, learning_starts=5).learn(10, callback=MoReFreeDiagnosticsCallback(diagnose_freq=50, n=16))
+    callback = MoReFreeDiagnosticsCallback(diagnose_freq=50, n=16, rollout_env=lambda: gym.make("GCRL/GrowingTree-v0"))
+    with pytest.raises(ValueError, match="observation space"):
+        tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), learning_starts=5).learn(10, callback=callback)
+    tiny(own, learning_starts=30).learn(
+        60, callback=MoReFreeDiagnosticsCallback(50, 16, rollout_env="GCRL/GrowingTreeGoal-v0")
+    )
+    with pytest.raises(TypeError, match="rollout_env"):
+        MoReFreeDiagnosticsCallback(rollout_env=3)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="rollout_episodes"):
+        MoReFreeDiagnosticsCallback(rollout_episodes=-1)
 
 
 @pytest.mark.slow  # compiling the three loss functions takes a few minutes on a CPU

@@ -13,6 +13,10 @@ Three figures, each computed on the agent's own replay data:
   of their lambda-returns. About 1: the critic follows the returns it regresses; near 0: a flat critic whose
   bootstrap gives pi_G no long-horizon gradient.
 
+and one probe on the task itself, :func:`evaluation_rollouts`: pi_G's evaluation episodes in the real env beside the
+world model's prediction of the same episodes (is a failure the model's, which thinks pi_G gets there, or the
+learners', whose pi_G fails in the model too?).
+
 :class:`MoReFreeDiagnosticsCallback` logs them under ``diagnostics/`` during training (and prints them with
 ``verbose=1``, a line :func:`parse_diagnostics` reads back); ``scripts/diagnose_morefree.py`` prints them for a run or
 a saved model.
@@ -20,15 +24,19 @@ a saved model.
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
+import gymnasium as gym
 import numpy as np
 import torch as th
 from scipy.stats import spearmanr
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_gcrl.morefree.networks import Actor, LatentState, symlog
+from sb3_gcrl.envs.tasks import find_task
+from sb3_gcrl.morefree.networks import Actor, LatentState, symexp, symlog
 
 if TYPE_CHECKING:
     from sb3_gcrl.morefree.morefree import MoReFree
@@ -183,17 +191,162 @@ def critic_calibration(model: MoReFree, n_starts: int = 512, seed: int = 0) -> f
     return float(values.std().item() / spread) if spread > 0 else float("nan")
 
 
-def diagnose(model: MoReFree, env: Any, n: int = 512, seed: int = 0) -> dict[str, float]:
+def _finite_mean(x: np.ndarray) -> float:
+    """Mean of the finite entries (a point inside a wall has no path distance), nan when there are none."""
+    finite = x[np.isfinite(x)]
+    return float(finite.mean()) if finite.size else float("nan")
+
+
+#: the figures of :func:`evaluation_rollouts`, in order
+ROLLOUT_FIGURES = (
+    "rollout_success",
+    "rollout_imagined_success",
+    "rollout_optimism",
+    "rollout_final_distance",
+    "rollout_imagined_final_distance",
+    "rollout_model_error",
+    "rollout_reconstruction_error",
+    "rollout_distance_correlation",
+)
+
+
+def _achieved(observations: list[dict[str, Any]]) -> np.ndarray:
+    return np.stack([np.asarray(o["achieved_goal"], dtype=np.float64).reshape(-1) for o in observations])
+
+
+def evaluation_rollouts(
+    model: MoReFree, envs: Sequence[gym.Env], seed: int = 0, success_threshold: float | None = None
+) -> dict[str, float]:
+    """pi_G's evaluation episodes in the real env beside the world model's prediction of the same episodes.
+
+    Each env runs one episode (``reset(seed=seed + i)``), acted as ``evaluate_policy`` acts: the latent filtered
+    across the episode, the posterior's mode, pi_G's deterministic action toward the episode's goal. Beside it:
+
+    * the *imagined* episode: from the first posterior, pi_G's deterministic actions rolled through the world model's
+      prior (its mode) for as many steps as the real episode, i.e. what pi_G expects from that start;
+    * the *model error*: from every posterior of the real episode, the real actions of the next
+      ``imagination_horizon`` steps rolled through the prior, the decoded achieved goal compared with the real one
+      (the model's accuracy where pi_G goes, over the horizon pi_G is trained on);
+    * the learned distance ``D(achieved_t, g)`` along the real path against the true one (:func:`true_distance`).
+
+    A failure the model also predicts (pi_G fails in imagination too) is the learners'; a success only the model
+    sees (``rollout_optimism``) is the model's.
+
+    :param model: the agent.
+    :param envs: evaluation envs (episodic: a time limit or terminations end their episodes), one episode each, with
+        the observation space the agent was trained on.
+    :param seed: seed of the first env's reset.
+    :param success_threshold: distance to the goal within which the imagined episode counts as a success (the
+        env's own test); ``None``: the task's (:func:`~sb3_gcrl.envs.tasks.find_task`), nan for an env of your own.
+    :return: ``rollout_success`` (share of real episodes with ``info["is_success"]`` at their end),
+        ``rollout_imagined_success`` (share whose imagined episode ends within ``success_threshold`` of the goal),
+        ``rollout_optimism`` (share imagined a success and not one in the env), ``rollout_final_distance`` and
+        ``rollout_imagined_final_distance`` (mean true distance of the real / imagined final achieved goal to the
+        goal), ``rollout_model_error`` (mean distance between the predicted and the real achieved goal
+        ``imagination_horizon`` steps ahead), ``rollout_reconstruction_error`` (the same at 0 steps: the decoder's
+        error on the posterior) and ``rollout_distance_correlation`` (Spearman of D with the true distance along the
+        real paths); distances in the env's units.
+    """
+    if not envs:
+        raise ValueError("evaluation_rollouts needs at least one env")
+    policy = model.policy
+    rssm = policy.world_model.rssm
+    device = model.device
+    n, goal_dim = len(envs), policy.goal_dim
+    if success_threshold is None:
+        task = find_task(envs[0])
+        success_threshold = None if task is None else task.success_threshold
+    observations = [env.reset(seed=seed + i)[0] for i, env in enumerate(envs)]
+    goals_raw = np.stack([np.asarray(o["desired_goal"], dtype=np.float64).reshape(-1) for o in observations])
+    goals = symlog(th.as_tensor(goals_raw, dtype=th.float32, device=device))
+    latent = rssm.initial(n, device)
+    action = th.zeros(n, policy.action_space.shape[0], device=device)
+    alive, lengths, success = np.ones(n, dtype=bool), np.zeros(n, dtype=np.int64), np.zeros(n)
+    posts: list[LatentState] = []
+    actions: list[th.Tensor] = []
+    achieved = [_achieved(observations)]
+    with th.no_grad():
+        while alive.any():
+            states, _ = policy.states_to_tensor({k: np.stack([o[k] for o in observations]) for k in observations[0]})
+            latent = policy.filter(latent, action, states, deterministic=True)
+            action = policy.actor_g.act(latent.feat, goals, deterministic=True)[0]
+            posts.append(latent)
+            actions.append(action)
+            env_actions = policy.unscale_action(action.cpu().numpy())
+            for i in np.flatnonzero(alive):
+                observations[i], _, terminated, truncated, info = envs[i].step(env_actions[i])
+                lengths[i] += 1
+                if terminated or truncated:
+                    alive[i] = False
+                    success[i] = float(info.get("is_success", np.nan))
+            achieved.append(_achieved(observations))
+        steps = len(actions)
+        real_paths = np.stack(achieved)  # (steps + 1, n, G); past an episode's end its last achieved goal repeats
+        # the imagined episode: pi_G from the first posterior through the prior, as long as the real one
+        imagined, imagined_final = posts[0], np.zeros((n, goal_dim))
+        for t in range(steps):
+            imagined = rssm.img_step(imagined, policy.actor_g.act(imagined.feat, goals, deterministic=True)[0], True)
+            ends = np.flatnonzero(lengths == t + 1)
+            if ends.size:
+                imagined_final[ends] = symexp(policy.world_model.decode_goal(imagined.feat)).cpu().numpy()[ends]
+        # the model's error over the imagination horizon along the real paths, with the real actions
+        horizon = min(model.imagination_horizon, steps)
+        every = LatentState(*(th.stack([post[f] for post in posts]) for f in range(len(LatentState._fields))))
+        reconstruction = symexp(policy.world_model.decode_goal(every.feat)).cpu().numpy()  # (steps, n, G)
+        inside = np.arange(steps)[:, None] < lengths[None, :]
+        reconstruction_error = np.linalg.norm(reconstruction - real_paths[:-1], axis=-1)[inside]
+        flat = LatentState(*(x[: steps - horizon + 1].flatten(0, 1) for x in every))
+        for k in range(horizon):
+            flat = rssm.img_step(flat, th.cat(actions[k : k + steps - horizon + 1]), True)
+        predicted = symexp(policy.world_model.decode_goal(flat.feat)).cpu().numpy()
+        ahead = (np.arange(steps - horizon + 1)[:, None] + horizon <= lengths[None, :]).reshape(-1)
+        model_error = np.linalg.norm(predicted - real_paths[horizon:].reshape(-1, goal_dim), axis=-1)
+        # the learned distance along the real paths against the true one
+        learned, truth = [], []
+        for i in range(n):
+            path = real_paths[: lengths[i] + 1, i]
+            points = symlog(th.as_tensor(path, dtype=th.float32, device=device))
+            learned.append(policy.distance(points, goals[i].expand_as(points)).cpu().numpy())
+            truth.append(true_distance(envs[i], path, goals_raw[i]))
+    learned_all, truth_all = np.concatenate(learned), np.concatenate(truth)
+    finite = np.isfinite(truth_all)
+    correlation = float(spearmanr(learned_all[finite], truth_all[finite]).statistic) if finite.sum() > 2 else np.nan
+    real_final = real_paths[lengths, np.arange(n)]
+    final_distance = np.array([true_distance(envs[i], real_final[i], goals_raw[i])[0] for i in range(n)])
+    imagined_distance = np.array([true_distance(envs[i], imagined_final[i], goals_raw[i])[0] for i in range(n)])
+    if success_threshold is None:
+        imagined_success = np.full(n, np.nan)
+    else:
+        imagined_success = (np.linalg.norm(imagined_final - goals_raw, axis=-1) <= success_threshold).astype(float)
+    figures = (
+        float(np.mean(success)),
+        float(np.mean(imagined_success)),
+        float(np.mean(imagined_success * (1.0 - success))),
+        _finite_mean(final_distance),
+        _finite_mean(imagined_distance),
+        float(model_error[ahead].mean()) if ahead.any() else float("nan"),
+        float(reconstruction_error.mean()),
+        float(correlation),
+    )
+    return dict(zip(ROLLOUT_FIGURES, figures, strict=True))
+
+
+def diagnose(
+    model: MoReFree, env: Any, n: int = 512, seed: int = 0, rollout_envs: Sequence[gym.Env] = ()
+) -> dict[str, float]:
     """All probes: ``distance_rank_correlation`` (replayed goals), ``distance_rank_correlation_task`` (evaluation
-    goals), ``goal_sensitivity``, ``goal_sensitivity_untrained``,
-    ``critic_calibration`` (see the module docstring)."""
-    return {
+    goals), ``goal_sensitivity``, ``goal_sensitivity_untrained``, ``critic_calibration`` (see the module docstring),
+    and with ``rollout_envs`` the figures of :func:`evaluation_rollouts` (one episode per env)."""
+    figures = {
         "distance_rank_correlation": distance_rank_correlation(model, env, n, seed=seed),
         "distance_rank_correlation_task": distance_rank_correlation(model, env, n, seed=seed, goals="evaluation"),
         "goal_sensitivity": goal_sensitivity(model, n, seed),
         "goal_sensitivity_untrained": untrained_goal_sensitivity(model, n, seed),
         "critic_calibration": critic_calibration(model, n, seed),
     }
+    if rollout_envs:
+        figures.update(evaluation_rollouts(model, rollout_envs, seed=seed * len(rollout_envs)))
+    return figures
 
 
 #: what starts the line :class:`MoReFreeDiagnosticsCallback` prints with ``verbose=1`` (read back by
@@ -223,18 +376,60 @@ class MoReFreeDiagnosticsCallback(BaseCallback):
 
     :param diagnose_freq: env steps between probes.
     :param n: states (and imagination starts) per probe.
+    :param rollout_episodes: evaluation episodes of :func:`evaluation_rollouts` per probe (0: none).
+    :param rollout_env: the env of those episodes: an env id or a function that makes the env; ``None``: the
+        training env's registered env (``gym.make`` of its spec without the wrappers added around it, so with its
+        registered time limit: the evaluation episode of the task).
     :param verbose: print the figures when >= 1.
     """
 
-    def __init__(self, diagnose_freq: int = 5000, n: int = 512, verbose: int = 0) -> None:
+    def __init__(
+        self,
+        diagnose_freq: int = 5000,
+        n: int = 512,
+        rollout_episodes: int = 10,
+        rollout_env: str | Callable[[], gym.Env] | None = None,
+        verbose: int = 0,
+    ) -> None:
         super().__init__(verbose)
-        if diagnose_freq < 1 or n < 2:
-            raise ValueError(f"diagnose_freq must be >= 1 and n >= 2, got {diagnose_freq}, {n}")
-        self.diagnose_freq, self.n = diagnose_freq, n
+        if diagnose_freq < 1 or n < 2 or rollout_episodes < 0:
+            raise ValueError(
+                f"diagnose_freq must be >= 1, n >= 2 and rollout_episodes >= 0, got {diagnose_freq}, {n}, "
+                f"{rollout_episodes}"
+            )
+        if rollout_env is not None and not (isinstance(rollout_env, str) or callable(rollout_env)):
+            raise TypeError(f"rollout_env must be an env id, a function that makes an env or None, got {rollout_env!r}")
+        self.diagnose_freq, self.n, self.rollout_episodes = diagnose_freq, n, rollout_episodes
+        self.rollout_env = rollout_env
         self._next = diagnose_freq
         #: (timestep, figures) of every probe so far
         self.history: list[tuple[int, dict[str, float]]] = []
         self._geometry: VecEnvGeometry | None = None
+        self._rollout_envs: list[gym.Env] = []
+
+    def _make_rollout_env(self) -> gym.Env:
+        if isinstance(self.rollout_env, str):
+            return gym.make(self.rollout_env)
+        if self.rollout_env is not None:
+            return self.rollout_env()
+        spec = self.training_env.get_attr("spec", indices=[0])[0]
+        if spec is None:
+            raise ValueError(
+                "MoReFreeDiagnosticsCallback: the training env was not made by gym.make, so its evaluation env is "
+                "unknown; pass rollout_env (an env id or a function that makes the env) or rollout_episodes=0"
+            )
+        return gym.make(dataclasses.replace(spec, additional_wrappers=()))
+
+    def _init_callback(self) -> None:
+        if not self.rollout_episodes:
+            return
+        self._rollout_envs = [self._make_rollout_env() for _ in range(self.rollout_episodes)]
+        space = self._rollout_envs[0].observation_space
+        if space != self.model.observation_space:
+            raise ValueError(
+                f"MoReFreeDiagnosticsCallback: the rollout env's observation space {space} is not the agent's "
+                f"{self.model.observation_space}; pass rollout_env (an env id or a function that makes the env)"
+            )
 
     def _on_step(self) -> bool:
         model = self.model
@@ -245,10 +440,21 @@ class MoReFreeDiagnosticsCallback(BaseCallback):
             return True
         if self._geometry is None:
             self._geometry = VecEnvGeometry(self.training_env)
-        figures = diagnose(model, self._geometry, self.n, seed=len(self.history))  # type: ignore[arg-type]
+        figures = diagnose(
+            model,  # type: ignore[arg-type]
+            self._geometry,
+            self.n,
+            seed=len(self.history),
+            rollout_envs=self._rollout_envs,
+        )
         self.history.append((self.num_timesteps, figures))
         for name, value in figures.items():
             self.logger.record(f"diagnostics/{name}", value)
         if self.verbose >= 1:
             print(format_diagnostics(self.num_timesteps, figures), flush=True)
         return True
+
+    def _on_training_end(self) -> None:
+        for env in self._rollout_envs:
+            env.close()
+        self._rollout_envs = []

@@ -37,6 +37,11 @@ def symlog(x: th.Tensor) -> th.Tensor:
     return th.sign(x) * th.log1p(th.abs(x))
 
 
+def symexp(x: th.Tensor) -> th.Tensor:
+    """sign(x) (exp(|x|) - 1), the inverse of :func:`symlog`: decoded goals back in the env's units."""
+    return th.sign(x) * th.expm1(th.abs(x))
+
+
 def mlp(in_dim: int, out_dim: int, hidden: int, layers: int) -> nn.Sequential:
     """An ELU MLP with ``layers`` hidden layers of ``hidden`` units and a linear output (DreamerV2 / PEG, no norm).
 
