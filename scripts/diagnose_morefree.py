@@ -11,8 +11,13 @@ and prints a table:
 * goal sensitivity: mean ``|pi_G(s, g_a) - pi_G(s, g_b)|`` (deterministic actions, fraction of the action range)
   over replayed latent states and two replayed goals, beside that of an untrained actor on the same states;
 * critic calibration: ``std V_G / std R^lambda`` over imagination starts;
+* on ``--episodes`` evaluation episodes (deterministic pi_G, the task's own 300-step episodes), the real success and
+  final path distance to the goal beside the world model's prediction of the same episodes (imagined success, the
+  share of episodes only the model thinks a success, the model's error ``imagination_horizon`` steps ahead along
+  pi_G's path) and the learned distance's rank correlation along those paths
+  (``sb3_gcrl.morefree.diagnostics.evaluation_rollouts``);
 
-with the evaluation success (deterministic pi_G, the task's own 300-step episodes) and wall / CPU time::
+with wall / CPU time::
 
     python scripts/diagnose_morefree.py --steps 50000 --every 10000          # about 1 h on one core
     python scripts/diagnose_morefree.py --load run.zip --load-buffer run_buffer.pkl
@@ -29,7 +34,6 @@ import time
 from pathlib import Path
 
 import gymnasium as gym
-import numpy as np
 import torch as th
 from rl_zoo3.utils import get_wrapper_class
 from stable_baselines3.common.env_util import make_vec_env
@@ -40,32 +44,28 @@ from sb3_gcrl.morefree import MoReFree
 from sb3_gcrl.morefree.diagnostics import diagnose
 from sb3_gcrl.zoo_config import resolve_config
 
+#: (column, figure of diagnose) of the printed table, after the env steps
+COLUMNS = (
+    ("D rank corr. (replay goals)", "distance_rank_correlation"),
+    ("D rank corr. (rho_g*)", "distance_rank_correlation_task"),
+    ("goal sensitivity", "goal_sensitivity"),
+    ("untrained", "goal_sensitivity_untrained"),
+    ("critic calibration", "critic_calibration"),
+    ("success", "rollout_success"),
+    ("imagined success", "rollout_imagined_success"),
+    ("optimism", "rollout_optimism"),
+    ("final path distance", "rollout_final_distance"),
+    ("imagined final path distance", "rollout_imagined_final_distance"),
+    ("model error at H", "rollout_model_error"),
+    ("reconstruction error", "rollout_reconstruction_error"),
+    ("D rank corr. on pi_G's paths", "rollout_distance_correlation"),
+)
 
-def evaluate(model: MoReFree, env_id: str, episodes: int) -> tuple[float, float]:
-    """Deterministic pi_G over the task's own episodes: (success rate, mean final distance to the goal)."""
-    env = gym.make(env_id)
-    successes, distances = [], []
-    for k in range(episodes):
-        obs, _ = env.reset(seed=10_000 + k)
-        start, done, info = True, False, {}
-        while not done:
-            action, _ = model.predict(obs, episode_start=np.array([start]), deterministic=True)
-            obs, _, terminated, truncated, info = env.step(action)
-            start, done = False, terminated or truncated
-        successes.append(float(info["is_success"]))
-        distances.append(float(np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"])))
-    return float(np.mean(successes)), float(np.mean(distances))
 
-
-def row(model: MoReFree, env: gym.Env, env_id: str, episodes: int, wall: float, cpu: float) -> str:
-    figures = diagnose(model, env)
-    success, distance = evaluate(model, env_id, episodes)
-    return (
-        f"| {model.num_timesteps} | {figures['distance_rank_correlation']:.2f} | "
-        f"{figures['distance_rank_correlation_task']:.2f} | {figures['goal_sensitivity']:.3f} | "
-        f"{figures['goal_sensitivity_untrained']:.3f} | {figures['critic_calibration']:.2f} | {success:.2f} | "
-        f"{distance:.2f} | {time.perf_counter() - wall:.0f} | {time.process_time() - cpu:.0f} |"
-    )
+def row(model: MoReFree, env: gym.Env, rollout_envs: list[gym.Env], wall: float, cpu: float) -> str:
+    figures = diagnose(model, env, rollout_envs=rollout_envs)
+    cells = " | ".join(f"{figures[name]:.2f}" for _, name in COLUMNS)
+    return f"| {model.num_timesteps} | {cells} | {time.perf_counter() - wall:.0f} | {time.process_time() - cpu:.0f} |"
 
 
 def main() -> None:
@@ -88,18 +88,16 @@ def main() -> None:
     env_id, hyperparams = args.env, resolve_config("morefree", args.env, args.variant, args.config).hyperparams
     vec_env = make_vec_env(env_id, n_envs=1, seed=args.seed, wrapper_class=get_wrapper_class(hyperparams))
     env = vec_env.envs[0]
-    print(
-        "| env steps | D rank corr. (replay goals) | D rank corr. (rho_g*) | goal sensitivity | untrained | "
-        "critic calibration | success | final distance | wall s | CPU s |"
-    )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    rollout_envs = [gym.make(env_id) for _ in range(args.episodes)]
+    print("| env steps | " + " | ".join(column for column, _ in COLUMNS) + " | wall s | CPU s |")
+    print("|---" * (len(COLUMNS) + 3) + "|")
     wall, cpu = time.perf_counter(), time.process_time()
     if args.load is not None:
         model = MoReFree.load(args.load, env=vec_env, device="cpu")
         if args.load_buffer is None:
             raise SystemExit("--load needs --load-buffer: the probes read the agent's replayed states")
         model.load_replay_buffer(args.load_buffer)
-        print(row(model, env, env_id, args.episodes, wall, cpu), flush=True)
+        print(row(model, env, rollout_envs, wall, cpu), flush=True)
         return
     skip = ("n_timesteps", "policy", "env_wrapper", "callback")
     kwargs = {k: v for k, v in hyperparams.items() if k not in skip}
@@ -111,7 +109,7 @@ def main() -> None:
     while model.num_timesteps < args.steps:
         model.learn(args.every, callback=callback, reset_num_timesteps=False)
         if model._n_updates > 0:
-            print(row(model, env, env_id, args.episodes, wall, cpu), flush=True)
+            print(row(model, env, rollout_envs, wall, cpu), flush=True)
     if args.save is not None:
         model.save(args.save)
         model.save_replay_buffer(str(Path(args.save).with_suffix("")) + "_buffer.pkl")
