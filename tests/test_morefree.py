@@ -882,6 +882,7 @@ def test_evaluation_rollouts_act_as_evaluate_policy_and_match_a_hand_computation
     ahead = np.concatenate([np.abs(0.5 - path[4:]) for path in paths])  # states 4 steps after a posterior
     assert figures["rollout_model_error"] == pytest.approx(ahead.mean(), abs=1e-5)
     assert figures["rollout_distance_correlation"] == pytest.approx(1.0)
+    assert figures["rollout_imagined_outside"] == 0.0  # GrowingTree's distance is defined everywhere
     # a model that puts every episode at the goal toward 1.5 is optimistic where the env disagrees
     figures = evaluation_rollouts(model, growing_tree_episodes((1.5, 0.5)), success_threshold=0.3)
     assert figures["rollout_success"] == pytest.approx(0.5)  # 1.5 is out of reach in 12 steps of 0.1
@@ -896,6 +897,21 @@ def test_evaluation_rollouts_act_as_evaluate_policy_and_match_a_hand_computation
     )
     with pytest.raises(ValueError, match="at least one env"):
         evaluation_rollouts(model, [])
+
+
+def test_evaluation_rollouts_count_imagined_ends_inside_a_maze_wall(monkeypatch: pytest.MonkeyPatch):
+    from sb3_gcrl.morefree.diagnostics import evaluation_rollouts
+
+    model = tiny(make_vec_env("GCRL/PointUMazeGoal-v0", n_envs=1, seed=0))
+    envs = [gym.make("GCRL/PointUMazeGoal-v0", max_episode_steps=5) for _ in range(2)]
+    world_model = model.policy.world_model
+    for point, outside in (((0.0, 0.0), 1.0), ((-1.0, 1.0), 0.0)):  # the U's inner wall; the goal's cell
+        decoded = symlog(th.tensor(point))
+        monkeypatch.setattr(world_model, "decode_goal", lambda feat, d=decoded: d.expand(*feat.shape[:-1], 2))
+        figures = evaluation_rollouts(model, envs)
+        assert figures["rollout_imagined_outside"] == outside
+        assert np.isnan(figures["rollout_imagined_final_distance"]) == bool(outside)
+        assert figures["rollout_imagined_success"] == 1.0 - outside  # within PointUMaze's 0.45 of (-1, 1)
 
 
 def test_diagnostics_callback_runs_the_evaluation_episodes_of_the_training_env_or_names_the_fix():

@@ -204,6 +204,7 @@ ROLLOUT_FIGURES = (
     "rollout_optimism",
     "rollout_final_distance",
     "rollout_imagined_final_distance",
+    "rollout_imagined_outside",
     "rollout_model_error",
     "rollout_reconstruction_error",
     "rollout_distance_correlation",
@@ -242,9 +243,11 @@ def evaluation_rollouts(
         ``rollout_imagined_success`` (share whose imagined episode ends within ``success_threshold`` of the goal),
         ``rollout_optimism`` (share imagined a success and not one in the env), ``rollout_final_distance`` and
         ``rollout_imagined_final_distance`` (mean true distance of the real / imagined final achieved goal to the
-        goal), ``rollout_model_error`` (mean distance between the predicted and the real achieved goal
-        ``imagination_horizon`` steps ahead), ``rollout_reconstruction_error`` (the same at 0 steps: the decoder's
-        error on the posterior) and ``rollout_distance_correlation`` (Spearman of D with the true distance along the
+        goal, over the ends that have one), ``rollout_imagined_outside`` (share of imagined episodes that end where
+        the true distance is undefined, e.g. inside a maze's wall), ``rollout_model_error`` (mean distance between
+        the predicted and the real achieved goal ``imagination_horizon`` steps ahead),
+        ``rollout_reconstruction_error`` (the same at 0 steps: the decoder's error on the posterior) and
+        ``rollout_distance_correlation`` (Spearman of D with the true distance along the
         real paths); distances in the env's units.
     """
     if not envs:
@@ -324,6 +327,7 @@ def evaluation_rollouts(
         float(np.mean(imagined_success * (1.0 - success))),
         _finite_mean(final_distance),
         _finite_mean(imagined_distance),
+        float(np.mean(~np.isfinite(imagined_distance))),
         float(model_error[ahead].mean()) if ahead.any() else float("nan"),
         float(reconstruction_error.mean()),
         float(correlation),
