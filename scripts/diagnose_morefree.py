@@ -11,8 +11,8 @@ and prints a table:
 * goal sensitivity: mean ``|pi_G(s, g_a) - pi_G(s, g_b)|`` (deterministic actions, fraction of the action range)
   over replayed latent states and two replayed goals, beside that of an untrained actor on the same states;
 * critic calibration: ``std V_G / std R^lambda`` over imagination starts;
-* on ``--episodes`` evaluation episodes (deterministic pi_G, the task's own 300-step episodes), the real success and
-  final path distance to the goal beside the world model's prediction of the same episodes (imagined success, the
+* on ``--episodes`` evaluation episodes (deterministic pi_G, the task's own 300-step episodes), the real success,
+  the share that reach the goal at some step and how long they stay, the final path distance to the goal, beside the world model's prediction of the same episodes (imagined success, the
   share of episodes only the model thinks a success, the model's error ``imagination_horizon`` steps ahead along
   pi_G's path) and the learned distance's rank correlation along those paths
   (``sb3_gcrl.morefree.diagnostics.evaluation_rollouts``);
@@ -52,10 +52,13 @@ COLUMNS = (
     ("untrained", "goal_sensitivity_untrained"),
     ("critic calibration", "critic_calibration"),
     ("success", "rollout_success"),
+    ("reached", "rollout_reached"),
+    ("held", "rollout_held"),
     ("imagined success", "rollout_imagined_success"),
     ("optimism", "rollout_optimism"),
     ("final path distance", "rollout_final_distance"),
     ("imagined final path distance", "rollout_imagined_final_distance"),
+    ("imagined ends inside walls", "rollout_imagined_outside"),
     ("model error at H", "rollout_model_error"),
     ("reconstruction error", "rollout_reconstruction_error"),
     ("D rank corr. on pi_G's paths", "rollout_distance_correlation"),

@@ -883,6 +883,12 @@ def test_evaluation_rollouts_act_as_evaluate_policy_and_match_a_hand_computation
     assert figures["rollout_model_error"] == pytest.approx(ahead.mean(), abs=1e-5)
     assert figures["rollout_distance_correlation"] == pytest.approx(1.0)
     assert figures["rollout_imagined_outside"] == 0.0  # GrowingTree's distance is defined everywhere
+    assert figures["rollout_reached"] == pytest.approx(2 / 3) and figures["rollout_held"] == 1.0  # they stop there
+    # episodes that do not stop at the goal: toward 0.75 (within 0.3 at heights 0.5-1.0 of 0.1-1.2), never toward -1
+    passing = [gym.make("GCRL/GrowingTreeGoal-v0", goal=g, max_episode_steps=12) for g in (0.75, -1.0)]
+    figures = evaluation_rollouts(model, passing, success_threshold=0.3)
+    assert figures["rollout_success"] == 0.0 and figures["rollout_reached"] == 0.5
+    assert figures["rollout_held"] == pytest.approx(6 / 8)  # heights 0.5 ... 1.2 after the first arrival
     # a model that puts every episode at the goal toward 1.5 is optimistic where the env disagrees
     figures = evaluation_rollouts(model, growing_tree_episodes((1.5, 0.5)), success_threshold=0.3)
     assert figures["rollout_success"] == pytest.approx(0.5)  # 1.5 is out of reach in 12 steps of 0.1

@@ -200,6 +200,8 @@ def _finite_mean(x: np.ndarray) -> float:
 #: the figures of :func:`evaluation_rollouts`, in order
 ROLLOUT_FIGURES = (
     "rollout_success",
+    "rollout_reached",
+    "rollout_held",
     "rollout_imagined_success",
     "rollout_optimism",
     "rollout_final_distance",
@@ -240,6 +242,9 @@ def evaluation_rollouts(
     :param success_threshold: distance to the goal within which the imagined episode counts as a success (the
         env's own test); ``None``: the task's (:func:`~sb3_gcrl.envs.tasks.find_task`), nan for an env of your own.
     :return: ``rollout_success`` (share of real episodes with ``info["is_success"]`` at their end),
+        ``rollout_reached`` (share of real episodes that come within ``success_threshold`` of the goal at some
+        step), ``rollout_held`` (of the steps from the first such step to the episode's end, the share spent there;
+        mean over the episodes that reached it: 1 for a policy that stops at the goal, low for one that passes it),
         ``rollout_imagined_success`` (share whose imagined episode ends within ``success_threshold`` of the goal),
         ``rollout_optimism`` (share imagined a success and not one in the env), ``rollout_final_distance`` and
         ``rollout_imagined_final_distance`` (mean true distance of the real / imagined final achieved goal to the
@@ -317,12 +322,21 @@ def evaluation_rollouts(
     real_final = real_paths[lengths, np.arange(n)]
     final_distance = np.array([true_distance(envs[i], real_final[i], goals_raw[i])[0] for i in range(n)])
     imagined_distance = np.array([true_distance(envs[i], imagined_final[i], goals_raw[i])[0] for i in range(n)])
+    reached, held = np.full(n, np.nan), np.full(n, np.nan)
     if success_threshold is None:
         imagined_success = np.full(n, np.nan)
     else:
         imagined_success = (np.linalg.norm(imagined_final - goals_raw, axis=-1) <= success_threshold).astype(float)
+        inside = np.linalg.norm(real_paths[1:] - goals_raw[None], axis=-1) <= success_threshold  # (steps, n)
+        for i in range(n):
+            visits = inside[: lengths[i], i]
+            reached[i] = float(visits.any())
+            if visits.any():
+                held[i] = float(visits[int(np.argmax(visits)) :].mean())
     figures = (
         float(np.mean(success)),
+        float(np.mean(reached)),
+        float(np.nanmean(held)) if np.isfinite(held).any() else float("nan"),
         float(np.mean(imagined_success)),
         float(np.mean(imagined_success * (1.0 - success))),
         _finite_mean(final_distance),
