@@ -11,11 +11,11 @@ and prints a table:
 * goal sensitivity: mean ``|pi_G(s, g_a) - pi_G(s, g_b)|`` (deterministic actions, fraction of the action range)
   over replayed latent states and two replayed goals, beside that of an untrained actor on the same states;
 * critic calibration: ``std V_G / std R^lambda`` over imagination starts;
-* on ``--episodes`` evaluation episodes (deterministic pi_G, the task's own 300-step episodes), the real success,
-  the share that reach the goal at some step and how long they stay, the final path distance to the goal, beside the world model's prediction of the same episodes (imagined success, the
-  share of episodes only the model thinks a success, the model's error ``imagination_horizon`` steps ahead along
-  pi_G's path) and the learned distance's rank correlation along those paths
-  (``sb3_gcrl.morefree.diagnostics.evaluation_rollouts``);
+* on ``--episodes`` evaluation episodes (deterministic pi_G, the task's own 300-step episodes): the real success,
+  the share that reach the goal at some step and how long they stay there, the final path distance to the goal,
+  beside the world model's prediction of the same episodes (imagined success, the share of episodes only the model
+  thinks a success, the model's error ``imagination_horizon`` steps ahead along pi_G's path) and the learned
+  distance's rank correlation along those paths (``sb3_gcrl.morefree.diagnostics.evaluation_rollouts``);
 
 with wall / CPU time::
 
