@@ -882,6 +882,7 @@ def test_evaluation_rollouts_act_as_evaluate_policy_and_match_a_hand_computation
     ahead = np.concatenate([np.abs(0.5 - path[4:]) for path in paths])  # states 4 steps after a posterior
     assert figures["rollout_model_error"] == pytest.approx(ahead.mean(), abs=1e-5)
     assert figures["rollout_distance_correlation"] == pytest.approx(1.0)
+    assert figures["rollout_distance_correlation_near"] == pytest.approx(1.0)  # the heights within 0.6 of a goal
     assert figures["rollout_imagined_outside"] == 0.0  # GrowingTree's distance is defined everywhere
     assert figures["rollout_reached"] == pytest.approx(2 / 3) and figures["rollout_held"] == 1.0  # they stop there
     # episodes that do not stop at the goal: toward 0.75 (within 0.3 at heights 0.5-1.0 of 0.1-1.2), never toward -1
@@ -889,6 +890,12 @@ def test_evaluation_rollouts_act_as_evaluate_policy_and_match_a_hand_computation
     figures = evaluation_rollouts(model, passing, success_threshold=0.3)
     assert figures["rollout_success"] == 0.0 and figures["rollout_reached"] == 0.5
     assert figures["rollout_held"] == pytest.approx(6 / 8)  # heights 0.5 ... 1.2 after the first arrival
+    # a distance that is right far away and flat within 0.6 of the goal (ranks by true distance beyond, ties near)
+    flat_near = lambda a, g: (symexp(a) - symexp(g)).abs().sum(-1).clamp(min=0.6)  # noqa: E731
+    monkeypatch.setattr(model.policy.distance, "forward", flat_near)
+    figures = evaluation_rollouts(model, passing, success_threshold=0.3)
+    assert figures["rollout_distance_correlation"] > 0.5 and np.isnan(figures["rollout_distance_correlation_near"])
+    assert np.isnan(evaluation_rollouts(model, passing)["rollout_distance_correlation_near"])  # no success radius
     # a model that puts every episode at the goal toward 1.5 is optimistic where the env disagrees
     figures = evaluation_rollouts(model, growing_tree_episodes((1.5, 0.5)), success_threshold=0.3)
     assert figures["rollout_success"] == pytest.approx(0.5)  # 1.5 is out of reach in 12 steps of 0.1

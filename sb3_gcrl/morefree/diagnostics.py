@@ -197,6 +197,13 @@ def _finite_mean(x: np.ndarray) -> float:
     return float(finite.mean()) if finite.size else float("nan")
 
 
+def _rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman correlation, nan for fewer than 3 points or a constant side."""
+    if a.size < 3 or np.ptp(a) == 0 or np.ptp(b) == 0:
+        return float("nan")
+    return float(spearmanr(a, b).statistic)
+
+
 #: the figures of :func:`evaluation_rollouts`, in order
 ROLLOUT_FIGURES = (
     "rollout_success",
@@ -210,6 +217,7 @@ ROLLOUT_FIGURES = (
     "rollout_model_error",
     "rollout_reconstruction_error",
     "rollout_distance_correlation",
+    "rollout_distance_correlation_near",
 )
 
 
@@ -251,9 +259,11 @@ def evaluation_rollouts(
         goal, over the ends that have one), ``rollout_imagined_outside`` (share of imagined episodes that end where
         the true distance is undefined, e.g. inside a maze's wall), ``rollout_model_error`` (mean distance between
         the predicted and the real achieved goal ``imagination_horizon`` steps ahead),
-        ``rollout_reconstruction_error`` (the same at 0 steps: the decoder's error on the posterior) and
-        ``rollout_distance_correlation`` (Spearman of D with the true distance along the
-        real paths); distances in the env's units.
+        ``rollout_reconstruction_error`` (the same at 0 steps: the decoder's error on the posterior),
+        ``rollout_distance_correlation`` (Spearman of D with the true distance along the real paths) and
+        ``rollout_distance_correlation_near`` (the same over the states within twice ``success_threshold`` of the
+        goal: can D still tell the goal from its surroundings, at the scale of the success test?); distances in the
+        env's units.
     """
     if not envs:
         raise ValueError("evaluation_rollouts needs at least one env")
@@ -318,7 +328,7 @@ def evaluation_rollouts(
             truth.append(true_distance(envs[i], path, goals_raw[i]))
     learned_all, truth_all = np.concatenate(learned), np.concatenate(truth)
     finite = np.isfinite(truth_all)
-    correlation = float(spearmanr(learned_all[finite], truth_all[finite]).statistic) if finite.sum() > 2 else np.nan
+    near = finite & (truth_all <= 2 * success_threshold) if success_threshold is not None else np.zeros_like(finite)
     real_final = real_paths[lengths, np.arange(n)]
     final_distance = np.array([true_distance(envs[i], real_final[i], goals_raw[i])[0] for i in range(n)])
     imagined_distance = np.array([true_distance(envs[i], imagined_final[i], goals_raw[i])[0] for i in range(n)])
@@ -344,7 +354,8 @@ def evaluation_rollouts(
         float(np.mean(~np.isfinite(imagined_distance))),
         float(model_error[ahead].mean()) if ahead.any() else float("nan"),
         float(reconstruction_error.mean()),
-        float(correlation),
+        _rank_correlation(learned_all[finite], truth_all[finite]),
+        _rank_correlation(learned_all[near], truth_all[near]),
     )
     return dict(zip(ROLLOUT_FIGURES, figures, strict=True))
 
