@@ -62,6 +62,7 @@ COLUMNS = (
     ("model error at H", "rollout_model_error"),
     ("reconstruction error", "rollout_reconstruction_error"),
     ("D rank corr. on pi_G's paths", "rollout_distance_correlation"),
+    ("the same near the goal", "rollout_distance_correlation_near"),
 )
 
 
