@@ -11,6 +11,7 @@ and prints a table:
 * goal sensitivity: mean ``|pi_G(s, g_a) - pi_G(s, g_b)|`` (deterministic actions, fraction of the action range)
   over replayed latent states and two replayed goals, beside that of an untrained actor on the same states;
 * critic calibration: ``std V_G / std R^lambda`` over imagination starts;
+* distance minimum error: how far from the goal D puts its minimum, beyond the replayed state nearest to it;
 * on ``--episodes`` evaluation episodes (deterministic pi_G, the task's own 300-step episodes): the real success,
   the share that reach the goal at some step and how long they stay there, the final path distance to the goal,
   beside the world model's prediction of the same episodes (imagined success, the share of episodes only the model
@@ -48,6 +49,7 @@ from sb3_gcrl.zoo_config import resolve_config
 COLUMNS = (
     ("D rank corr. (replay goals)", "distance_rank_correlation"),
     ("D rank corr. (rho_g*)", "distance_rank_correlation_task"),
+    ("D minimum error", "distance_minimum_error"),
     ("goal sensitivity", "goal_sensitivity"),
     ("untrained", "goal_sensitivity_untrained"),
     ("critic calibration", "critic_calibration"),

@@ -779,6 +779,7 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
     from sb3_gcrl.morefree.diagnostics import (
         MoReFreeDiagnosticsCallback,
         critic_calibration,
+        distance_minimum_error,
         distance_rank_correlation,
         format_diagnostics,
         goal_sensitivity,
@@ -804,6 +805,14 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
     exact = lambda a, g: (symexp(a) - symexp(g)).abs().sum(-1)  # noqa: E731  (D reads symlog goals)
     monkeypatch.setattr(model.policy.distance, "forward", exact)
     assert distance_rank_correlation(model, base, 64) == pytest.approx(1.0)
+    assert distance_minimum_error(model, base, 256) == 0.0  # its minimum is at the replayed state nearest the goal
+    # a distance whose minimum sits halfway between 0 and the goal: by hand, with the function's own draws
+    monkeypatch.setattr(model.policy.distance, "forward", lambda a, g: (symexp(a) - 0.5 * symexp(g)).abs().sum(-1))
+    rng = np.random.default_rng(3)
+    states, goals = (model.replay_buffer.sample_states(k, rng)[:, -1] for k in (256, 8))
+    by_hand = [abs(states[np.argmin(abs(states - 0.5 * g))] - g) - abs(states - g).min() for g in goals]
+    error = distance_minimum_error(model, base, 256, seed=3, goals="replay")
+    assert error == pytest.approx(np.mean(by_hand), abs=1e-5) and error > 0.05
     monkeypatch.setattr(model.policy.distance, "forward", lambda a, g: -exact(a, g))
     assert distance_rank_correlation(model, base, 64) == pytest.approx(-1.0)
     # (b) an actor that ignores its goal has no goal sensitivity; one that copies the goal has |g_a - g_b| / 2

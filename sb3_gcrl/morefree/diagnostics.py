@@ -1,6 +1,6 @@
 """Probes of the world-model MoReFree agent's pieces against ground truth (why it learns, or does not).
 
-Three figures, each computed on the agent's own replay data:
+Four figures, each computed on the agent's own replay data:
 
 * :func:`distance_rank_correlation`: Spearman rank correlation between the learned dynamical distance
   ``D(achieved, goal)`` and the env's true distance between the same points (``path_distance`` when the env
@@ -12,6 +12,8 @@ Three figures, each computed on the agent's own replay data:
 * :func:`critic_calibration`: standard deviation of V_G over imagination starts divided by the standard deviation
   of their lambda-returns. About 1: the critic follows the returns it regresses; near 0: a flat critic whose
   bootstrap gives pi_G no long-horizon gradient.
+* :func:`distance_minimum_error`: how far from the goal the learned distance puts its minimum, beyond the replayed
+  state nearest to it (0: pi_G's reward peaks at the goal).
 
 and one probe on the task itself, :func:`evaluation_rollouts`: pi_G's evaluation episodes in the real env beside the
 world model's prediction of the same episodes (is a failure the model's, which thinks pi_G gets there, or the
@@ -120,6 +122,47 @@ def distance_rank_correlation(
     d, t = np.concatenate(learned), np.concatenate(truth)
     finite = np.isfinite(t)
     return float(spearmanr(d[finite], t[finite]).statistic)
+
+
+def distance_minimum_error(
+    model: MoReFree, env: Any, n_states: int = 4096, n_goals: int = 8, seed: int = 0, goals: str = "evaluation"
+) -> float:
+    """How far from its goal the learned distance puts its minimum: over ``n_states`` replayed states ``s``, the true
+    distance to ``g`` of ``argmin_s D(s, g)`` minus that of the replayed state truly nearest to ``g``, mean over
+    ``n_goals`` goals.
+
+    0: of the replayed states, D's nearest to the goal is the nearest one (pi_G's reward peaks at the goal); a value
+    near the success radius: pi_G is rewarded for stopping beside the goal, not in it.
+
+    :param model: the agent (its replay buffer holds the states).
+    :param env: the env whose geometry is the ground truth (see :func:`true_distance`).
+    :param n_states: replayed states (the candidates; more of them reach closer to each goal).
+    :param n_goals: goals.
+    :param seed: seed of the draws.
+    :param goals: ``"evaluation"`` (rho_g*) or ``"replay"`` (replayed achieved goals).
+    :return: the mean error in the env's units (nan when no goal has a finite true distance to any state).
+    """
+    rng = np.random.default_rng(seed)
+    goal_dim = model.policy.goal_dim
+    achieved = model.replay_buffer.sample_states(n_states, rng)[:, -goal_dim:]
+    if goals == "replay":
+        targets = model.replay_buffer.sample_states(n_goals, rng)[:, -goal_dim:]
+    elif goals == "evaluation":
+        targets = model._task_goal_samples("evaluation", n_goals).reshape(-1, goal_dim)
+    else:
+        raise ValueError(f"goals must be 'replay' or 'evaluation', got {goals!r}")
+    errors = []
+    with th.no_grad():
+        points = symlog(th.as_tensor(achieved, dtype=th.float32, device=model.device))
+        for goal in targets:
+            target = symlog(th.as_tensor(goal, dtype=th.float32, device=model.device)).expand_as(points)
+            learned = model.policy.distance(points, target).cpu().numpy()
+            truth = true_distance(env, achieved, goal)
+            finite = np.isfinite(truth)
+            if finite.any():
+                best = int(np.flatnonzero(finite)[np.argmin(learned[finite])])
+                errors.append(truth[best] - truth[finite].min())
+    return float(np.mean(errors)) if errors else float("nan")
 
 
 def goal_sensitivity(model: MoReFree, n_states: int = 512, seed: int = 0, actor: Actor | None = None) -> float:
@@ -364,11 +407,13 @@ def diagnose(
     model: MoReFree, env: Any, n: int = 512, seed: int = 0, rollout_envs: Sequence[gym.Env] = ()
 ) -> dict[str, float]:
     """All probes: ``distance_rank_correlation`` (replayed goals), ``distance_rank_correlation_task`` (evaluation
-    goals), ``goal_sensitivity``, ``goal_sensitivity_untrained``, ``critic_calibration`` (see the module docstring),
-    and with ``rollout_envs`` the figures of :func:`evaluation_rollouts` (one episode per env)."""
+    goals), ``distance_minimum_error`` (evaluation goals, ``8 n`` candidate states), ``goal_sensitivity``,
+    ``goal_sensitivity_untrained``, ``critic_calibration`` (see the module docstring), and with ``rollout_envs`` the
+    figures of :func:`evaluation_rollouts` (one episode per env)."""
     figures = {
         "distance_rank_correlation": distance_rank_correlation(model, env, n, seed=seed),
         "distance_rank_correlation_task": distance_rank_correlation(model, env, n, seed=seed, goals="evaluation"),
+        "distance_minimum_error": distance_minimum_error(model, env, 8 * n, seed=seed),
         "goal_sensitivity": goal_sensitivity(model, n, seed),
         "goal_sensitivity_untrained": untrained_goal_sensitivity(model, n, seed),
         "critic_calibration": critic_calibration(model, n, seed),
