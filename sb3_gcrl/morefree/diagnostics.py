@@ -310,69 +310,25 @@ def evaluation_rollouts(
     """
     if not envs:
         raise ValueError("evaluation_rollouts needs at least one env")
-    policy = model.policy
-    rssm = policy.world_model.rssm
-    device = model.device
-    n, goal_dim = len(envs), policy.goal_dim
     if success_threshold is None:
         task = find_task(envs[0])
         success_threshold = None if task is None else task.success_threshold
-    observations = [env.reset(seed=seed + i)[0] for i, env in enumerate(envs)]
-    goals_raw = np.stack([np.asarray(o["desired_goal"], dtype=np.float64).reshape(-1) for o in observations])
-    goals = symlog(th.as_tensor(goals_raw, dtype=th.float32, device=device))
-    latent = rssm.initial(n, device)
-    action = th.zeros(n, policy.action_space.shape[0], device=device)
-    alive, lengths, success = np.ones(n, dtype=bool), np.zeros(n, dtype=np.int64), np.zeros(n)
-    posts: list[LatentState] = []
-    actions: list[th.Tensor] = []
-    achieved = [_achieved(observations)]
+    policy, device, n = model.policy, model.device, len(envs)
     with th.no_grad():
-        while alive.any():
-            states, _ = policy.states_to_tensor({k: np.stack([o[k] for o in observations]) for k in observations[0]})
-            latent = policy.filter(latent, action, states, deterministic=True)
-            action = policy.actor_g.act(latent.feat, goals, deterministic=True)[0]
-            posts.append(latent)
-            actions.append(action)
-            env_actions = policy.unscale_action(action.cpu().numpy())
-            for i in np.flatnonzero(alive):
-                observations[i], _, terminated, truncated, info = envs[i].step(env_actions[i])
-                lengths[i] += 1
-                if terminated or truncated:
-                    alive[i] = False
-                    success[i] = float(info.get("is_success", np.nan))
-            achieved.append(_achieved(observations))
-        steps = len(actions)
-        real_paths = np.stack(achieved)  # (steps + 1, n, G); past an episode's end its last achieved goal repeats
-        # the imagined episode: pi_G from the first posterior through the prior, as long as the real one
-        imagined, imagined_final = posts[0], np.zeros((n, goal_dim))
-        for t in range(steps):
-            imagined = rssm.img_step(imagined, policy.actor_g.act(imagined.feat, goals, deterministic=True)[0], True)
-            ends = np.flatnonzero(lengths == t + 1)
-            if ends.size:
-                imagined_final[ends] = symexp(policy.world_model.decode_goal(imagined.feat)).cpu().numpy()[ends]
-        # the model's error over the imagination horizon along the real paths, with the real actions
-        horizon = min(model.imagination_horizon, steps)
-        every = LatentState(*(th.stack([post[f] for post in posts]) for f in range(len(LatentState._fields))))
-        reconstruction = symexp(policy.world_model.decode_goal(every.feat)).cpu().numpy()  # (steps, n, G)
-        inside = np.arange(steps)[:, None] < lengths[None, :]
-        reconstruction_error = np.linalg.norm(reconstruction - real_paths[:-1], axis=-1)[inside]
-        flat = LatentState(*(x[: steps - horizon + 1].flatten(0, 1) for x in every))
-        for k in range(horizon):
-            flat = rssm.img_step(flat, th.cat(actions[k : k + steps - horizon + 1]), True)
-        predicted = symexp(policy.world_model.decode_goal(flat.feat)).cpu().numpy()
-        ahead = (np.arange(steps - horizon + 1)[:, None] + horizon <= lengths[None, :]).reshape(-1)
-        model_error = np.linalg.norm(predicted - real_paths[horizon:].reshape(-1, goal_dim), axis=-1)
-        # the learned distance along the real paths against the true one
-        learned, truth = [], []
+        episodes = _play_episodes(model, envs, seed)
+        imagined_final = _imagined_ends(model, episodes)
+        reconstruction_error, model_error = _model_errors(model, episodes)
+        learned, truth = [], []  # the learned distance along the real paths against the true one
         for i in range(n):
-            path = real_paths[: lengths[i] + 1, i]
+            path = episodes.paths[: episodes.lengths[i] + 1, i]
             points = symlog(th.as_tensor(path, dtype=th.float32, device=device))
-            learned.append(policy.distance(points, goals[i].expand_as(points)).cpu().numpy())
-            truth.append(true_distance(envs[i], path, goals_raw[i]))
+            learned.append(policy.distance(points, episodes.goals[i].expand_as(points)).cpu().numpy())
+            truth.append(true_distance(envs[i], path, episodes.goals_raw[i]))
     learned_all, truth_all = np.concatenate(learned), np.concatenate(truth)
     finite = np.isfinite(truth_all)
     near = finite & (truth_all <= 2 * success_threshold) if success_threshold is not None else np.zeros_like(finite)
-    real_final = real_paths[lengths, np.arange(n)]
+    goals_raw, lengths, success = episodes.goals_raw, episodes.lengths, episodes.success
+    real_final = episodes.paths[lengths, np.arange(n)]
     final_distance = np.array([true_distance(envs[i], real_final[i], goals_raw[i])[0] for i in range(n)])
     imagined_distance = np.array([true_distance(envs[i], imagined_final[i], goals_raw[i])[0] for i in range(n)])
     reached, held = np.full(n, np.nan), np.full(n, np.nan)
@@ -380,9 +336,9 @@ def evaluation_rollouts(
         imagined_success = np.full(n, np.nan)
     else:
         imagined_success = (np.linalg.norm(imagined_final - goals_raw, axis=-1) <= success_threshold).astype(float)
-        inside = np.linalg.norm(real_paths[1:] - goals_raw[None], axis=-1) <= success_threshold  # (steps, n)
+        in_goal = np.linalg.norm(episodes.paths[1:] - goals_raw[None], axis=-1) <= success_threshold  # (steps, n)
         for i in range(n):
-            visits = inside[: lengths[i], i]
+            visits = in_goal[: lengths[i], i]
             reached[i] = float(visits.any())
             if visits.any():
                 held[i] = float(visits[int(np.argmax(visits)) :].mean())
@@ -395,12 +351,91 @@ def evaluation_rollouts(
         _finite_mean(final_distance),
         _finite_mean(imagined_distance),
         float(np.mean(~np.isfinite(imagined_distance))),
-        float(model_error[ahead].mean()) if ahead.any() else float("nan"),
+        float(model_error.mean()) if model_error.size else float("nan"),
         float(reconstruction_error.mean()),
         _rank_correlation(learned_all[finite], truth_all[finite]),
         _rank_correlation(learned_all[near], truth_all[near]),
     )
     return dict(zip(ROLLOUT_FIGURES, figures, strict=True))
+
+
+@dataclasses.dataclass
+class _Episodes:
+    """pi_G's evaluation episodes, played in lock-step (rows past an episode's end repeat its last state)."""
+
+    #: posterior latents ``steps x (n, ...)`` and pi_G's actions ``steps x (n, A)`` taken in them
+    posts: list[LatentState]
+    actions: list[th.Tensor]
+    #: achieved goals ``(steps + 1, n, G)``, episode lengths ``(n,)``, ``is_success`` at each episode's end ``(n,)``
+    paths: np.ndarray
+    lengths: np.ndarray
+    success: np.ndarray
+    #: the episodes' goals, raw ``(n, G)`` and symlog ``(n, G)`` (a tensor)
+    goals_raw: np.ndarray
+    goals: th.Tensor
+
+
+def _play_episodes(model: MoReFree, envs: Sequence[gym.Env], seed: int) -> _Episodes:
+    """One episode per env (``reset(seed=seed + i)``), acted as ``predict`` with ``episode_start`` acts."""
+    policy, n = model.policy, len(envs)
+    observations = [env.reset(seed=seed + i)[0] for i, env in enumerate(envs)]
+    goals_raw = np.stack([np.asarray(o["desired_goal"], dtype=np.float64).reshape(-1) for o in observations])
+    goals = symlog(th.as_tensor(goals_raw, dtype=th.float32, device=model.device))
+    latent = policy.world_model.rssm.initial(n, model.device)
+    action = th.zeros(n, policy.action_space.shape[0], device=model.device)
+    alive, lengths, success = np.ones(n, dtype=bool), np.zeros(n, dtype=np.int64), np.zeros(n)
+    posts: list[LatentState] = []
+    actions: list[th.Tensor] = []
+    achieved = [_achieved(observations)]
+    while alive.any():
+        states, _ = policy.states_to_tensor({k: np.stack([o[k] for o in observations]) for k in observations[0]})
+        latent = policy.filter(latent, action, states, deterministic=True)
+        action = policy.actor_g.act(latent.feat, goals, deterministic=True)[0]
+        posts.append(latent)
+        actions.append(action)
+        env_actions = policy.unscale_action(action.cpu().numpy())
+        for i in np.flatnonzero(alive):
+            observations[i], _, terminated, truncated, info = envs[i].step(env_actions[i])
+            lengths[i] += 1
+            if terminated or truncated:
+                alive[i] = False
+                success[i] = float(info.get("is_success", np.nan))
+        achieved.append(_achieved(observations))
+    return _Episodes(posts, actions, np.stack(achieved), lengths, success, goals_raw, goals)
+
+
+def _imagined_ends(model: MoReFree, episodes: _Episodes) -> np.ndarray:
+    """The achieved goal ``(n, G)`` at which pi_G, rolled through the prior's mode from each episode's first
+    posterior for as many steps as the real episode, ends."""
+    policy = model.policy
+    imagined, ends_at = episodes.posts[0], np.zeros((len(episodes.lengths), policy.goal_dim))
+    for t in range(len(episodes.actions)):
+        action = policy.actor_g.act(imagined.feat, episodes.goals, deterministic=True)[0]
+        imagined = policy.world_model.rssm.img_step(imagined, action, True)
+        ends = np.flatnonzero(episodes.lengths == t + 1)
+        if ends.size:
+            ends_at[ends] = symexp(policy.world_model.decode_goal(imagined.feat)).cpu().numpy()[ends]
+    return ends_at
+
+
+def _model_errors(model: MoReFree, episodes: _Episodes) -> tuple[np.ndarray, np.ndarray]:
+    """The decoder's errors on the real episodes' posteriors, and the model's errors ``imagination_horizon`` steps
+    ahead (from each posterior, the real actions through the prior's mode), over the steps inside the episodes."""
+    policy, lengths = model.policy, episodes.lengths
+    steps = len(episodes.actions)
+    horizon = min(model.imagination_horizon, steps)
+    starts = steps - horizon + 1
+    every = LatentState(*(th.stack(field) for field in zip(*episodes.posts, strict=True)))
+    decoded = symexp(policy.world_model.decode_goal(every.feat)).cpu().numpy()  # (steps, n, G)
+    inside = np.arange(steps)[:, None] < lengths[None, :]
+    reconstruction = np.linalg.norm(decoded - episodes.paths[:-1], axis=-1)[inside]
+    latent = LatentState(*(x[:starts].flatten(0, 1) for x in every))
+    for k in range(horizon):
+        latent = policy.world_model.rssm.img_step(latent, th.cat(episodes.actions[k : k + starts]), True)
+    predicted = symexp(policy.world_model.decode_goal(latent.feat)).cpu().numpy()
+    ahead = (np.arange(starts)[:, None] + horizon <= lengths[None, :]).reshape(-1)
+    error = np.linalg.norm(predicted - episodes.paths[horizon:].reshape(-1, predicted.shape[-1]), axis=-1)
+    return reconstruction, error[ahead]
 
 
 def diagnose(
