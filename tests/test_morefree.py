@@ -936,6 +936,18 @@ def test_evaluation_rollouts_count_imagined_ends_inside_a_maze_wall(monkeypatch:
         assert figures["rollout_imagined_success"] == 1.0 - outside  # within PointUMaze's 0.45 of (-1, 1)
 
 
+def test_the_probes_leave_training_as_it_would_have_been_without_them():
+    from sb3_gcrl.morefree.diagnostics import MoReFreeDiagnosticsCallback
+
+    params = []
+    for callback in (None, MoReFreeDiagnosticsCallback(diagnose_freq=40, n=16, rollout_episodes=2)):
+        model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), learning_starts=30)
+        model.learn(160, callback=callback)
+        params.append(th.nn.utils.parameters_to_vector(model.policy.parameters()).detach())
+    assert len(callback.history) == 3  # probes at 80, 120, 160 (none before the first update)
+    th.testing.assert_close(params[0], params[1], rtol=0, atol=0)
+
+
 def test_diagnostics_callback_runs_the_evaluation_episodes_of_the_training_env_or_names_the_fix():
     from sb3_gcrl.morefree.diagnostics import ROLLOUT_FIGURES, MoReFreeDiagnosticsCallback
 

@@ -27,7 +27,8 @@ a saved model.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -444,7 +445,29 @@ def diagnose(
     """All probes: ``distance_rank_correlation`` (replayed goals), ``distance_rank_correlation_task`` (evaluation
     goals), ``distance_minimum_error`` (evaluation goals, ``8 n`` candidate states), ``goal_sensitivity``,
     ``goal_sensitivity_untrained``, ``critic_calibration`` (see the module docstring), and with ``rollout_envs`` the
-    figures of :func:`evaluation_rollouts` (one episode per env)."""
+    figures of :func:`evaluation_rollouts` (one episode per env).
+
+    The probes leave the agent's random numbers as they found them (PyTorch's and the agent's generator): training
+    goes on as it would have without them."""
+    with _own_random_numbers(model, seed):
+        return _diagnose(model, env, n, seed, rollout_envs)
+
+
+@contextmanager
+def _own_random_numbers(model: MoReFree, seed: int) -> Iterator[None]:
+    """Probes draw from their own generators: PyTorch's state and the agent's generator are put back afterwards, so
+    that a run trains the same with and without probes."""
+    devices = [model.device] if model.device.type == "cuda" else []
+    agent_rng = model._rng
+    model._rng = np.random.default_rng(seed)
+    try:
+        with th.random.fork_rng(devices=devices):
+            yield
+    finally:
+        model._rng = agent_rng
+
+
+def _diagnose(model: MoReFree, env: Any, n: int, seed: int, rollout_envs: Sequence[gym.Env]) -> dict[str, float]:
     figures = {
         "distance_rank_correlation": distance_rank_correlation(model, env, n, seed=seed),
         "distance_rank_correlation_task": distance_rank_correlation(model, env, n, seed=seed, goals="evaluation"),
