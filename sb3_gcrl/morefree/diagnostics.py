@@ -90,6 +90,29 @@ def _replay_latents(model: MoReFree, batch: int, rng: np.random.Generator) -> tu
     return post.flatten(), states[..., -policy.goal_dim :].reshape(-1, policy.goal_dim)
 
 
+def _learned_and_true_distances(
+    model: MoReFree, env: Any, n_states: int, n_goals: int, seed: int, goals: str
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(D(s, g), true distance(s, g))`` over ``n_states`` replayed states ``s``, for each of ``n_goals`` goals
+    (``"replay"``: replayed achieved goals; ``"evaluation"``: rho_g*)."""
+    rng = np.random.default_rng(seed)
+    goal_dim = model.policy.goal_dim
+    achieved = model.replay_buffer.sample_states(n_states, rng)[:, -goal_dim:]
+    if goals == "replay":
+        targets = model.replay_buffer.sample_states(n_goals, rng)[:, -goal_dim:]
+    elif goals == "evaluation":
+        targets = model._task_goal_samples("evaluation", n_goals).reshape(-1, goal_dim)
+    else:
+        raise ValueError(f"goals must be 'replay' or 'evaluation', got {goals!r}")
+    pairs = []
+    with th.no_grad():
+        points = symlog(th.as_tensor(achieved, dtype=th.float32, device=model.device))
+        for goal in targets:
+            target = symlog(th.as_tensor(goal, dtype=th.float32, device=model.device)).expand_as(points)
+            pairs.append((model.policy.distance(points, target).cpu().numpy(), true_distance(env, achieved, goal)))
+    return pairs
+
+
 def distance_rank_correlation(
     model: MoReFree, env: Any, n_states: int = 512, n_goals: int = 8, seed: int = 0, goals: str = "replay"
 ) -> float:
@@ -104,22 +127,8 @@ def distance_rank_correlation(
         ``"evaluation"`` (rho_g*: does pi_G's reward point to the task's goals?).
     :return: the rank correlation (nan if the distances are constant).
     """
-    rng = np.random.default_rng(seed)
-    goal_dim = model.policy.goal_dim
-    achieved = model.replay_buffer.sample_states(n_states, rng)[:, -goal_dim:]
-    if goals == "replay":
-        targets = model.replay_buffer.sample_states(n_goals, rng)[:, -goal_dim:]
-    elif goals == "evaluation":
-        targets = model._task_goal_samples("evaluation", n_goals).reshape(-1, goal_dim)
-    else:
-        raise ValueError(f"goals must be 'replay' or 'evaluation', got {goals!r}")
-    learned, truth = [], []
-    with th.no_grad():
-        points = symlog(th.as_tensor(achieved, dtype=th.float32, device=model.device))
-        for goal in targets:
-            target = symlog(th.as_tensor(goal, dtype=th.float32, device=model.device)).expand_as(points)
-            learned.append(model.policy.distance(points, target).cpu().numpy())
-            truth.append(true_distance(env, achieved, goal))
+    pairs = _learned_and_true_distances(model, env, n_states, n_goals, seed, goals)
+    learned, truth = zip(*pairs, strict=True)
     d, t = np.concatenate(learned), np.concatenate(truth)
     finite = np.isfinite(t)
     return float(spearmanr(d[finite], t[finite]).statistic)
@@ -143,26 +152,12 @@ def distance_minimum_error(
     :param goals: ``"evaluation"`` (rho_g*) or ``"replay"`` (replayed achieved goals).
     :return: the mean error in the env's units (nan when no goal has a finite true distance to any state).
     """
-    rng = np.random.default_rng(seed)
-    goal_dim = model.policy.goal_dim
-    achieved = model.replay_buffer.sample_states(n_states, rng)[:, -goal_dim:]
-    if goals == "replay":
-        targets = model.replay_buffer.sample_states(n_goals, rng)[:, -goal_dim:]
-    elif goals == "evaluation":
-        targets = model._task_goal_samples("evaluation", n_goals).reshape(-1, goal_dim)
-    else:
-        raise ValueError(f"goals must be 'replay' or 'evaluation', got {goals!r}")
     errors = []
-    with th.no_grad():
-        points = symlog(th.as_tensor(achieved, dtype=th.float32, device=model.device))
-        for goal in targets:
-            target = symlog(th.as_tensor(goal, dtype=th.float32, device=model.device)).expand_as(points)
-            learned = model.policy.distance(points, target).cpu().numpy()
-            truth = true_distance(env, achieved, goal)
-            finite = np.isfinite(truth)
-            if finite.any():
-                best = int(np.flatnonzero(finite)[np.argmin(learned[finite])])
-                errors.append(truth[best] - truth[finite].min())
+    for learned, truth in _learned_and_true_distances(model, env, n_states, n_goals, seed, goals):
+        finite = np.isfinite(truth)
+        if finite.any():
+            best = int(np.flatnonzero(finite)[np.argmin(learned[finite])])
+            errors.append(truth[best] - truth[finite].min())
     return float(np.mean(errors)) if errors else float("nan")
 
 
