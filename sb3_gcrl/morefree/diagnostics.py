@@ -314,19 +314,21 @@ def evaluation_rollouts(
         episodes = _play_episodes(model, envs, seed)
         imagined_final = _imagined_ends(model, episodes)
         reconstruction_error, model_error = _model_errors(model, episodes)
-        learned, truth = [], []  # the learned distance along the real paths against the true one
+        # the learned and the true distance along the real paths (whose last point is the real end), and the true
+        # distance of the imagined end, in one ground-truth call per episode
+        learned, truth = [], []
+        final_distance, imagined_distance = np.zeros(n), np.zeros(n)
         for i in range(n):
             path = episodes.paths[: episodes.lengths[i] + 1, i]
             points = symlog(th.as_tensor(path, dtype=th.float32, device=device))
             learned.append(policy.distance(points, episodes.goals[i].expand_as(points)).cpu().numpy())
-            truth.append(true_distance(envs[i], path, episodes.goals_raw[i]))
+            distances = true_distance(envs[i], np.vstack([path, imagined_final[i]]), episodes.goals_raw[i])
+            truth.append(distances[:-1])
+            final_distance[i], imagined_distance[i] = distances[-2], distances[-1]
     learned_all, truth_all = np.concatenate(learned), np.concatenate(truth)
     finite = np.isfinite(truth_all)
     near = finite & (truth_all <= 2 * success_threshold) if success_threshold is not None else np.zeros_like(finite)
     goals_raw, lengths, success = episodes.goals_raw, episodes.lengths, episodes.success
-    real_final = episodes.paths[lengths, np.arange(n)]
-    final_distance = np.array([true_distance(envs[i], real_final[i], goals_raw[i])[0] for i in range(n)])
-    imagined_distance = np.array([true_distance(envs[i], imagined_final[i], goals_raw[i])[0] for i in range(n)])
     reached, held = np.full(n, np.nan), np.full(n, np.nan)
     if success_threshold is None:
         imagined_success = np.full(n, np.nan)
