@@ -200,6 +200,7 @@ def train(argv: list[str]) -> int:
             )
         resume_from = Path(argv[1]).resolve()
         argv, _ = resume_arguments(resume_from)
+    _check_names(argv)
     argv, resolved = resolve_train_config(argv)
     argv = _with_default_num_threads(argv)
     _check_config(argv, resolved)
@@ -219,36 +220,69 @@ def train(argv: list[str]) -> int:
     return INTERRUPTED_EXIT_CODE if any(m.interrupted for m in managers) else code
 
 
-def _override_keys(argv: Sequence[str]) -> list[str]:
-    """Keys of the ``-params`` / ``--hyperparams`` overrides (``key:value`` words after the flag) in ``argv``."""
-    keys = []
+def _overrides(argv: Sequence[str]) -> tuple[dict[str, Any], str]:
+    """The ``-params`` / ``--hyperparams`` overrides (``key:value`` words after the flag) in ``argv``, values read as
+    :func:`~sb3_gcrl.zoo_config.parse_override` reads them, and the flag they came with."""
+    import yaml
+
+    from sb3_gcrl.zoo_config import parse_override
+
+    overrides: dict[str, Any] = {}
+    flag = "-params"
     for i, arg in enumerate(argv):
         if arg not in ("-params", "--hyperparams"):
             continue
-        for word in argv[i + 1 :]:
-            if word.startswith("-"):
-                break
-            keys.append(word.split(":", 1)[0])
-    return keys
+        flag = arg
+        for word in itertools.takewhile(lambda word: not word.startswith("-"), argv[i + 1 :]):
+            try:
+                key, value = parse_override(word)
+            except (ValueError, yaml.YAMLError):  # RL-Zoo's parser names what it cannot read
+                key, value = word.split(":", 1)[0], None
+            overrides[key] = value
+    return overrides, flag
+
+
+def _check_names(argv: Sequence[str]) -> None:
+    """Stop before the hyperparameters are looked up when ``--algo`` or ``--env`` names nothing that exists, with
+    close matches (:func:`~sb3_gcrl.zoo_config.check_algorithm`, :func:`~sb3_gcrl.zoo_config.check_env_id`: the
+    checks of ``sb3-gcrl compare``); the modules of ``--gym-packages`` are imported first (they register envs)."""
+    from sb3_gcrl.compare.run import prepare_process
+    from sb3_gcrl.zoo_config import check_algorithm, check_env_id
+
+    prepare_process(tuple(_option_values(argv, "--gym-packages")), single_thread=False)
+    try:
+        check_algorithm(_option_value(argv, "--algo") or "ppo")  # RL-Zoo's defaults
+        check_env_id(_option_value(argv, "--env") or "CartPole-v1")
+    except ValueError as error:
+        raise SystemExit(f"sb3-gcrl train: {error}") from None
 
 
 def _check_config(argv: list[str], resolved: ResolvedConfig) -> None:
     """Stop before training when the section (with the ``-params`` overrides) has a key that the algorithm does not
-    take (:func:`~sb3_gcrl.zoo_config.check_hyperparameters`, with close matches), or uses a mode-switched wrapper
-    without its callback (:func:`~sb3_gcrl.zoo_config.check_mode_switching_callbacks`)."""
+    take (:func:`~sb3_gcrl.zoo_config.check_hyperparameters`, with close matches), uses a mode-switched wrapper
+    without its callback (:func:`~sb3_gcrl.zoo_config.check_mode_switching_callbacks`), or has no budget of at least
+    one step (:func:`~sb3_gcrl.zoo_config.run_budget`: ``-n``, else the section's ``n_timesteps``), or when the log
+    folder (``-f``) cannot be written (:func:`~sb3_gcrl.common.validation.check_writable_folder`): the checks of
+    ``sb3-gcrl compare``."""
     from rl_zoo3.utils import ALGOS
 
     from sb3_gcrl.algorithms import ALGORITHMS
-    from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks
+    from sb3_gcrl.common.validation import check_writable_folder
+    from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks, run_budget
 
-    overrides = _override_keys(argv)
+    overrides, flag = _overrides(argv)
     algo = _option_value(argv, "--algo")
+    section = {**resolved.hyperparams, **overrides}
     try:
         if algo in ALGORITHMS or algo in ALGOS:
-            merged = {**resolved.hyperparams, **dict.fromkeys(overrides)}
-            check_hyperparameters(algo, merged, resolved.where, overrides)
+            check_hyperparameters(algo, section, resolved.where, list(overrides), override_flag=flag)
         if not {"callback", "env_wrapper"} & set(overrides):  # else RL-Zoo's merged values are not known here
             check_mode_switching_callbacks(resolved.hyperparams, resolved.where)
+        n_timesteps = _option_value(argv, "-n", "--n-timesteps")
+        if n_timesteps is None or n_timesteps.lstrip("-").isdigit():  # else RL-Zoo's parser names the mistake
+            where = f"{flag} n_timesteps" if "n_timesteps" in overrides else resolved.where
+            run_budget(section, where, None if n_timesteps is None else int(n_timesteps))
+        check_writable_folder("the log folder (-f)", _option_value(argv, "-f", "--log-folder") or "logs")
     except ValueError as error:
         raise SystemExit(f"sb3-gcrl train: {error}") from None
 

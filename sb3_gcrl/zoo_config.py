@@ -26,6 +26,8 @@ from typing import Any
 
 import yaml
 
+from sb3_gcrl.common.validation import check_int
+
 #: the zoo configs this package ships (package data; a clone also has them as ``zoo_configs/`` at its root)
 ZOO_CONFIGS_DIR = Path(__file__).resolve().parent / "zoo_configs"
 #: joins an env id and a variant in a section key: ``GCRL/PointUMazeGoal-v0@peg``
@@ -512,6 +514,7 @@ def check_hyperparameters(
     where: str,
     overrides: Sequence[str] = (),
     run_set_hint: str = "seed: --seed; env: --env",
+    override_flag: str = "--hyperparams",
 ) -> None:
     """Raise before any run starts when a hyperparameter is not an argument of the algorithm's constructor.
 
@@ -525,6 +528,7 @@ def check_hyperparameters(
     :param where: where the config's come from (named in the message).
     :param overrides: keys given as overrides (``--hyperparams``), named as such in the message.
     :param run_set_hint: how the command sets the :data:`RUN_SET_ARGUMENTS` instead (named in the message).
+    :param override_flag: the option the overrides came with (``-params`` or ``--hyperparams``).
     :raises ValueError: naming each unknown key, its close matches and where it comes from.
     """
     from rl_zoo3.utils import ALGOS
@@ -539,11 +543,11 @@ def check_hyperparameters(
     accepted = (arguments - RUN_SET_ARGUMENTS) | ZOO_KEYS
     problems = []
     for key in sorted(set(section) - accepted):
-        origin = "--hyperparams" if key in overrides else where
+        origin = override_flag if key in overrides else where
         if key in RUN_SET_ARGUMENTS:
             problems.append(f"{key!r} (from {origin}) is set by the run itself ({run_set_hint})")
             continue
-        close = difflib.get_close_matches(key, public + sorted(ZOO_KEYS), n=3)
+        close = difflib.get_close_matches(key, sorted(set(public) | ZOO_KEYS), n=3)
         hint = f" (did you mean {', '.join(repr(c) for c in close)}?)" if close else ""
         problems.append(f"{key!r}{hint} from {origin}")
     if problems:
@@ -551,3 +555,66 @@ def check_hyperparameters(
             f"Unknown hyperparameter(s) for {algo} ({algo_class.__name__}): {'; '.join(problems)}. "
             f"{algo_class.__name__} takes: {public}; RL-Zoo also reads: {sorted(ZOO_KEYS)}."
         )
+
+
+def available_algorithms() -> list[str]:
+    """Algorithm names ``--algo`` and a compare method may use: this package's and RL-Zoo's (sorted)."""
+    from rl_zoo3.utils import ALGOS
+
+    from sb3_gcrl.algorithms import ALGORITHMS
+
+    return sorted(set(ALGORITHMS) | set(ALGOS))
+
+
+def check_algorithm(algo: str) -> None:
+    """Raise a clear error when ``algo`` is not an algorithm name (:func:`available_algorithms`).
+
+    :param algo: the name given (``--algo``, a compare method's ``ALGO``).
+    :raises ValueError: with close matches and the valid names.
+    """
+    algos = available_algorithms()
+    if algo in algos:
+        return
+    close = difflib.get_close_matches(algo, algos, n=3)
+    hint = f" Did you mean {close}?" if close else ""
+    raise ValueError(f"{algo!r} is not an algorithm.{hint} Valid algorithms: {algos}.")
+
+
+def check_env_id(env_id: str) -> None:
+    """Raise a clear error when ``env_id`` is not registered with gymnasium.
+
+    :param env_id: gymnasium id, e.g. ``GCRL/GrowingTree-v0``.
+    :raises ValueError: listing close matches and this package's ``GCRL/`` ids.
+    """
+    import gymnasium as gym
+
+    if env_id in gym.registry:
+        return
+    close = difflib.get_close_matches(env_id, list(gym.registry), n=5)
+    ours = sorted(key for key in gym.registry if key.startswith("GCRL/"))
+    raise ValueError(
+        f"Unknown env {env_id!r}. Close matches: {close}. This package's envs: {ours}. "
+        "Envs of another package need `--gym-packages <module>` (the module must register them on import)."
+    )
+
+
+def run_budget(section: Mapping[str, Any], where: str, n_timesteps: Any = None) -> int:
+    """The training budget of a run (env steps), checked before it starts: ``n_timesteps`` when given (the command
+    line's ``-n``), else the section's ``n_timesteps``.
+
+    :param section: the hyperparameters the run gets (config section and overrides).
+    :param where: where the section comes from (named in the message).
+    :param n_timesteps: the budget given explicitly, or None.
+    :return: the budget.
+    :raises ValueError: ``n_timesteps must be >= 1`` (naming the section when the value comes from it), or the
+        section gives no budget.
+    """
+    if n_timesteps is not None:
+        return check_int("n_timesteps", n_timesteps)
+    if "n_timesteps" not in section:
+        raise ValueError(f"{where} gives no n_timesteps: pass a budget (--n-timesteps)")
+    value = section["n_timesteps"]
+    try:  # PyYAML reads 1e6 (no dot) as a string
+        return check_int("n_timesteps", float(value) if isinstance(value, str) else value)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{error}, from {where}: set a budget of at least 1 step there, or pass -n N") from None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -125,7 +126,7 @@ def test_train_refuses_unknown_hyperparameters_before_training_with_close_matche
     argv = ["train", "--algo", "sac", "--env", "Pendulum-v1", "-conf", str(config), "-f", str(logs)]
     with pytest.raises(SystemExit, match=rf"'lerning_rate' \(did you mean 'learning_rate'.*\) from {config}"):
         main(argv)
-    with pytest.raises(SystemExit, match=r"'gama' \(did you mean 'gamma'\?\) from --hyperparams"):
+    with pytest.raises(SystemExit, match=r"'gama' \(did you mean 'gamma'\?\) from -params"):
         main([*argv, "-params", "gama:0.9", "learning_rate:0.01"])
     config.write_text("default:\n  n_timesteps: 100\n  gama: 0.9\n")
     with pytest.raises(SystemExit, match=r"for cec \(CEC\): 'gama' \(did you mean 'gamma'"):
@@ -307,3 +308,78 @@ def test_conf_takes_the_name_of_a_shipped_config(tmp_path, capsys):
     assert (
         "  GCRL/PointUMazeGoal-v0  variants: oracle naive goexplore wo_bf wo_relabel alpha1 post_exploration_on" in sac
     )
+
+
+def _refused_everywhere(
+    tmp_path: Path, train_argv: list[str], compare_argv: list[str], capsys: pytest.CaptureFixture[str]
+) -> tuple[str, str]:
+    """The messages of ``sb3-gcrl train`` and ``sb3-gcrl compare`` refusing a mistake before any work (nothing
+    written in their output folders)."""
+    from sb3_gcrl.compare.cli import EXIT_USAGE
+    from sb3_gcrl.compare.cli import main as compare_main
+
+    logs, output = tmp_path / "logs", tmp_path / "out"
+    with pytest.raises(SystemExit) as refused:
+        main(["train", *train_argv, "-f", str(logs)])
+    capsys.readouterr()
+    assert compare_main([*compare_argv, "--output", str(output), "--no-progress"]) == EXIT_USAGE
+    compare_message = capsys.readouterr().err
+    assert not (logs.exists() and any(logs.iterdir())) and not (output / "runs").exists()
+    return str(refused.value.code), compare_message
+
+
+def test_budgets_below_one_step_are_refused_by_train_compare_and_the_python_api(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from sb3_gcrl.compare import compare
+
+    config = tmp_path / "budget.yml"
+    config.write_text("Pendulum-v1:\n  n_timesteps: -5\n  policy: MlpPolicy\n")
+    expected = r"n_timesteps must be >= 1, got -5\.?0?, from .*budget\.yml \(section Pendulum-v1\)"
+    train_message, compare_message = _refused_everywhere(
+        tmp_path, ["--algo", "sac", "--env", "Pendulum-v1", "-conf", str(config)],
+        ["-m", f"sac:{config}", "-e", "Pendulum-v1"], capsys,
+    )  # fmt: skip
+    assert re.search(expected, train_message) and re.search(expected, compare_message)
+    with pytest.raises(ValueError, match=expected):
+        compare([f"sac:{config}"], ["Pendulum-v1"], output=tmp_path / "api", progress=False)
+    config.write_text("Pendulum-v1:\n  n_timesteps: 100\n  policy: MlpPolicy\n")
+    for budget in ("0", "-100"):
+        train_message, compare_message = _refused_everywhere(
+            tmp_path, ["--algo", "sac", "--env", "Pendulum-v1", "-conf", str(config), "-n", budget],
+            ["-m", f"sac:{config}", "-e", "Pendulum-v1", "-n", budget], capsys,
+        )  # fmt: skip
+        assert f"n_timesteps must be >= 1, got {budget}" in train_message
+        assert f"n_timesteps must be >= 1, got {budget}" in compare_message
+    with pytest.raises(SystemExit, match=r"got -3\.?0?, from -params n_timesteps"):
+        main(["train", "--algo", "sac", "--env", "Pendulum-v1", "-conf", str(config), "-params", "n_timesteps:-3"])
+
+
+def test_misspelled_names_get_the_same_close_matches_on_train_and_compare(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    train_message, compare_message = _refused_everywhere(
+        tmp_path, ["--algo", "cec", "--env", "GCRL/PointUmaze-v0"], ["-m", "cec", "-e", "GCRL/PointUmaze-v0"], capsys
+    )
+    expected = "Unknown env 'GCRL/PointUmaze-v0'. Close matches: ['GCRL/PointUMaze-v0'"
+    assert expected in train_message and expected in compare_message
+    env = "GCRL/GrowingTree-v0"
+    train_message, compare_message = _refused_everywhere(
+        tmp_path, ["--algo", "cecc", "--env", env], ["-m", "cecc", "-e", env], capsys
+    )
+    expected = "'cecc' is not an algorithm. Did you mean ['cec'"
+    assert expected in train_message and expected in compare_message
+
+
+def test_a_close_match_is_suggested_once_and_overrides_are_named_by_their_flag(tmp_path: Path) -> None:
+    config = tmp_path / "typo.yml"
+    config.write_text("default:\n  n_timesteps: 100\n  noise_sdt: 0.1\n")
+    argv = ["train", "--algo", "cec", "--env", "Pendulum-v1", "-conf", str(config), "-f", str(tmp_path / "logs")]
+    with pytest.raises(SystemExit) as refused:
+        main(argv)
+    assert str(refused.value.code).count("did you mean 'noise_std'") == 1
+    config.write_text("default:\n  n_timesteps: 100\n")
+    with pytest.raises(SystemExit, match=r"'gama' \(did you mean 'gamma'\?\) from -params"):
+        main([*argv, "-params", "gama:0.9"])
+    with pytest.raises(SystemExit, match=r"'gama' \(did you mean 'gamma'\?\) from --hyperparams"):
+        main([*argv, "--hyperparams", "gama:0.9"])

@@ -11,6 +11,7 @@ with it.
 * switches and names: :func:`check_bool`, :func:`check_choice`;
 * HER: :func:`check_n_sampled_goal`;
 * data: :func:`check_finite_rewards`, :func:`check_finite_returns`, :func:`check_saved_rows`;
+* files: :func:`check_writable_folder` (an output folder, before work starts);
 * algorithms: :class:`FiniteRewardsMixin` (every reward an SB3 off-policy algorithm stores is checked).
 """
 
@@ -18,7 +19,11 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
+import shutil
+import tempfile
 from collections.abc import Collection, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -292,3 +297,37 @@ def check_saved_rows(
     if n and int(state["clock"]) < int(last_update.max()):
         raise ValueError(f"Saved {owner} is corrupted: clock {int(state['clock'])} precedes its last update times")
     return keys
+
+
+#: free bytes below which an output folder's disk counts as full
+MIN_FREE_BYTES = 1 << 20
+
+
+def check_writable_folder(name: str, folder: str | os.PathLike[str]) -> Path:
+    """Check, before work starts, that files can be written in ``folder`` (created with its parents when missing):
+    a small file is written there, synced and removed, and the disk must have :data:`MIN_FREE_BYTES` free.
+
+    Without it a read-only or full folder fails at the run's first save, after the setup (or the training) it cost.
+
+    :param name: what the folder is, for the message (``"the log folder (-f)"``).
+    :param folder: the folder.
+    :return: ``folder`` as a path.
+    :raises ValueError: naming the folder, what is wrong (the system's reason, or the free space) and the fix.
+    """
+    folder = Path(folder)
+    fix = f"pass another {name.removeprefix('the ')}, or make this one writable (permissions, a read-write mount)"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder) as probe:
+            probe.write(bytes(4096))
+            probe.flush()
+            os.fsync(probe.fileno())
+    except OSError as error:
+        raise ValueError(f"Cannot write in {name} {folder} ({error.strerror or error}): {fix}") from None
+    free = shutil.disk_usage(folder).free
+    if free < MIN_FREE_BYTES:
+        raise ValueError(
+            f"{name[0].upper()}{name[1:]} {folder} is on a full disk ({free:,} bytes free): free some space there, or "
+            f"pass another {name.removeprefix('the ')}"
+        )
+    return folder

@@ -24,33 +24,26 @@ comparison's ``configs/`` folder and the run reads it from there.
 
 from __future__ import annotations
 
-import difflib
 import re
 from dataclasses import dataclass
 from pathlib import Path
-
-import gymnasium as gym
 
 from sb3_gcrl.zoo_config import (
     VARIANT_SEPARATOR,
     ZOO_CONFIGS_DIR,
     ResolvedConfig,
+    available_algorithms,
+    check_algorithm,
+    check_env_id,
     config_sections,
     find_config,
     resolve_config,
 )
 
+__all__ = ["Method", "available_algorithms", "check_env_id", "config_env_ids", "method_label", "parse_method"]
+
 _LABEL_RE = re.compile(r"^[A-Za-z0-9_.\-+]+$")
 _VARIANT_RE = re.compile(r"^[A-Za-z0-9_.\-+]+$")
-
-
-def available_algorithms() -> list[str]:
-    """Algorithm names a method may use: this package's and RL-Zoo's (sorted)."""
-    from rl_zoo3.utils import ALGOS
-
-    from sb3_gcrl.algorithms import ALGORITHMS
-
-    return sorted(set(ALGORITHMS) | set(ALGOS))
 
 
 def config_env_ids(config: Path) -> list[str]:
@@ -135,15 +128,13 @@ def parse_method(spec: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Method:
     :raises ValueError: unknown algorithm, missing config file or a bad label; the message lists the valid choices.
     """
     _, algo, variant, config_name = _split_spec(spec)
-    algos = available_algorithms()
-    if algo not in algos:
-        close = difflib.get_close_matches(algo, algos, n=3)
-        hint = f" Did you mean {close}?" if close else ""
+    try:
+        check_algorithm(algo)
+    except ValueError as error:
         raise ValueError(
-            f"Unknown method {spec!r}: {algo!r} is not an algorithm.{hint} Valid algorithms: {algos}. A method is "
-            "ALGO, ALGO@VARIANT, ALGO[@VARIANT]:CONFIG (a .yml path or a file name in zoo_configs/) or "
-            "LABEL=ALGO[@VARIANT][:CONFIG]."
-        )
+            f"Unknown method {spec!r}: {error} A method is ALGO, ALGO@VARIANT, ALGO[@VARIANT]:CONFIG (a .yml path or "
+            "a file name in zoo_configs/) or LABEL=ALGO[@VARIANT][:CONFIG]."
+        ) from None
     if variant and not _VARIANT_RE.match(variant):
         raise ValueError(f"Variant {variant!r} of method {spec!r} may only use letters, digits and _ . - +")
     config: Path | None = None
@@ -160,19 +151,3 @@ def parse_method(spec: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Method:
     if not _LABEL_RE.match(label):
         raise ValueError(f"Method label {label!r} may only use letters, digits and _ . - + (it names folders)")
     return Method(label=label, algo=algo, config=config, variant=variant or implied)
-
-
-def check_env_id(env_id: str) -> None:
-    """Raise a clear error when ``env_id`` is not registered with gymnasium.
-
-    :param env_id: gymnasium id, e.g. ``GCRL/GrowingTree-v0``.
-    :raises ValueError: listing close matches and this package's ``GCRL/`` ids.
-    """
-    if env_id in gym.registry:
-        return
-    close = difflib.get_close_matches(env_id, list(gym.registry), n=5)
-    ours = sorted(key for key in gym.registry if key.startswith("GCRL/"))
-    raise ValueError(
-        f"Unknown env {env_id!r}. Close matches: {close}. This package's envs: {ours}. "
-        "Envs of another package need `--gym-packages <module>` (the module must register them on import)."
-    )

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_gcrl.cli import ZOO_CONFIGS_DIR
+from sb3_gcrl.common.validation import check_int, check_optional_int, check_writable_folder
 from sb3_gcrl.compare.backends import Backend, Job, LocalProcessBackend, RayBackend
 from sb3_gcrl.compare.methods import Method, check_env_id, parse_method
 from sb3_gcrl.compare.report import Summary, summarize, write_outputs
@@ -22,7 +23,7 @@ from sb3_gcrl.compare.storage import (
     is_finished,
     lock_output,
 )
-from sb3_gcrl.zoo_config import ResolvedConfig, check_hyperparameters, check_mode_switching_callbacks
+from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks, run_budget
 
 #: evaluations per run when ``eval_freq`` is not given
 DEFAULT_N_EVALUATIONS = 20
@@ -110,13 +111,6 @@ class ProgressDisplay:
         self.bar.close()
 
 
-def _config_budget(resolved: ResolvedConfig) -> int:
-    """``n_timesteps`` of the section a run uses."""
-    if "n_timesteps" not in resolved.hyperparams:
-        raise ValueError(f"{resolved.where} gives no n_timesteps: pass a budget (--n-timesteps)")
-    return int(float(resolved.hyperparams["n_timesteps"]))
-
-
 def make_backend(backend: Backend | str, n_workers: int | None = None, ray_address: str | None = None) -> Backend:
     """Backend from its name (``local`` or ``ray``) or as given.
 
@@ -166,7 +160,7 @@ def plan_runs(
             section = {**resolved.hyperparams, **hyperparams}
             check_mode_switching_callbacks(section, resolved.where)
             check_hyperparameters(method.algo, section, resolved.where, list(hyperparams), RUN_SET_HINT)
-            budget = n_timesteps if n_timesteps is not None else _config_budget(resolved)
+            budget = run_budget(section, resolved.where, n_timesteps)
             frequency = eval_freq if eval_freq is not None else max(1, budget // DEFAULT_N_EVALUATIONS)
             specs.extend(
                 RunSpec(
@@ -324,11 +318,9 @@ def compare(
         raise ValueError("compare needs at least one method, one env and one seed")
     if len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds must be distinct, got {list(seeds)}")
-    for name, value in (("n_timesteps", n_timesteps), ("eval_freq", eval_freq)):
-        if value is not None and value < 1:
-            raise ValueError(f"{name} must be >= 1, got {value}")
-    if n_eval_episodes < 1:
-        raise ValueError(f"n_eval_episodes must be >= 1, got {n_eval_episodes}")
+    check_optional_int("n_timesteps", n_timesteps)
+    check_optional_int("eval_freq", eval_freq)
+    check_int("n_eval_episodes", n_eval_episodes)
     if metric not in ("auto", "success_rate", "mean_return"):
         raise ValueError(f"metric must be 'auto', 'success_rate' or 'mean_return', got {metric!r}")
     config_dir = Path(config_dir)
@@ -342,6 +334,7 @@ def compare(
     output = Path(output)
     if report_only and not (output / "runs").is_dir():
         raise ValueError(f"{output} holds no runs to report on; run the command without --report-only first")
+    check_writable_folder("the output folder (--output)", output)
     specs = plan_runs(
         parsed, envs, seeds, n_timesteps, eval_freq, n_eval_episodes, hyperparams or {}, gym_packages, config_dir,
         save_models, env_kwargs, output / "configs",
