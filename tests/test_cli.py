@@ -383,3 +383,36 @@ def test_a_close_match_is_suggested_once_and_overrides_are_named_by_their_flag(t
         main([*argv, "-params", "gama:0.9"])
     with pytest.raises(SystemExit, match=r"'gama' \(did you mean 'gamma'\?\) from --hyperparams"):
         main([*argv, "--hyperparams", "gama:0.9"])
+
+
+def test_a_read_only_or_full_output_folder_is_refused_before_work_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import errno
+    import tempfile
+    from collections import namedtuple
+
+    from sb3_gcrl.common import validation
+
+    config = tmp_path / "sac.yml"
+    config.write_text("Pendulum-v1:\n  n_timesteps: 100\n  policy: MlpPolicy\n")
+    argvs = (
+        ["--algo", "sac", "--env", "Pendulum-v1", "-conf", str(config)],
+        ["-m", f"sac:{config}", "-e", "Pendulum-v1"],
+    )
+
+    def read_only(*args: object, **kwargs: object) -> None:
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS))
+
+    with monkeypatch.context() as patch:  # a read-only mount (root writes through permission bits)
+        patch.setattr(tempfile, "TemporaryFile", read_only)
+        train_message, compare_message = _refused_everywhere(tmp_path, *argvs, capsys)
+    assert re.search(
+        r"Cannot write in the log folder \(-f\) .*logs \(Read-only file system\): pass another", train_message
+    )
+    assert re.search(r"Cannot write in the output folder \(--output\) .*out \(Read-only file system\)", compare_message)
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(validation.shutil, "disk_usage", lambda path: usage(10**9, 10**9 - 4096, 4096))
+    train_message, compare_message = _refused_everywhere(tmp_path, *argvs, capsys)
+    assert re.search(r"The log folder \(-f\) .*logs is on a full disk \(4,096 bytes free\): free some", train_message)
+    assert "The output folder (--output)" in compare_message and "full disk (4,096 bytes free)" in compare_message
