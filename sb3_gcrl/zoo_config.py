@@ -508,6 +508,19 @@ def constructor_arguments(algo_class: type) -> set[str] | None:
     return None
 
 
+def algorithm_class(algo: str) -> type:
+    """The class of an algorithm name: this package's (:data:`sb3_gcrl.algorithms.ALGORITHMS`) or RL-Zoo's.
+
+    :param algo: the name (``--algo``).
+    :return: the class.
+    """
+    from rl_zoo3.utils import ALGOS
+
+    from sb3_gcrl.algorithms import ALGORITHMS, load_algorithm
+
+    return load_algorithm(algo) if algo in ALGORITHMS else ALGOS[algo]
+
+
 def check_hyperparameters(
     algo: str,
     section: Mapping[str, Any],
@@ -531,11 +544,7 @@ def check_hyperparameters(
     :param override_flag: the option the overrides came with (``-params`` or ``--hyperparams``).
     :raises ValueError: naming each unknown key, its close matches and where it comes from.
     """
-    from rl_zoo3.utils import ALGOS
-
-    from sb3_gcrl.algorithms import ALGORITHMS, load_algorithm
-
-    algo_class = load_algorithm(algo) if algo in ALGORITHMS else ALGOS[algo]
+    algo_class = algorithm_class(algo)
     arguments = constructor_arguments(algo_class)
     if arguments is None:
         return

@@ -302,7 +302,9 @@ def resume_arguments(run_dir: Path) -> tuple[list[str], Path]:
     :return: ``(arguments, checkpoint)``: the run's own arguments with ``-i <checkpoint>/model.zip``.
     :raises SystemExit: the folder is not a run of ``sb3-gcrl train`` or has no checkpoint.
     """
-    from sb3_gcrl.common.checkpoints import CheckpointError
+    from sb3_gcrl.cli import _option_value
+    from sb3_gcrl.common.checkpoints import CheckpointError, check_checkpoint
+    from sb3_gcrl.zoo_config import algorithm_class
 
     saved = sorted(run_dir.glob(f"*/{ARGUMENTS_FILE}"))
     if not saved:
@@ -310,10 +312,21 @@ def resume_arguments(run_dir: Path) -> tuple[list[str], Path]:
             f"sb3-gcrl train --resume {run_dir}: not a run folder of sb3-gcrl train (no */{ARGUMENTS_FILE}); "
             "pass the folder the run printed as 'Log path'"
         )
+    arguments: list[str] = json.loads(saved[0].read_text())
     try:
         checkpoint = latest_checkpoint(run_dir)
     except CheckpointError as error:
         raise SystemExit(f"sb3-gcrl train --resume: {error}") from None
+    try:
+        check_checkpoint(checkpoint, algorithm_class(_option_value(arguments, "--algo") or "ppo"))
+    except CheckpointError as error:
+        models = sorted(str(path) for path in run_dir.glob("*.zip"))
+        start_from = f" one of the run's saved models ({', '.join(models)}) or" if models else ""
+        raise SystemExit(
+            f"sb3-gcrl train --resume: {error}. The run cannot continue from this checkpoint, and it keeps no older "
+            "one (each checkpoint replaces the previous). Restore the file from a backup and resume again, or start "
+            f"a new run from{start_from} scratch (-i MODEL starts from a saved model, with the step counter at 0)"
+        ) from None
     final_model = saved[0].parent.parent / f"{saved[0].parent.name}.zip"
     if final_model.is_file():
         from stable_baselines3.common.save_util import load_from_zip_file
@@ -325,7 +338,6 @@ def resume_arguments(run_dir: Path) -> tuple[list[str], Path]:
                 f"{final_steps} steps) is newer than its newest checkpoint ({checkpoint_steps(checkpoint)} steps), "
                 "so there is nothing to resume"
             )
-    arguments: list[str] = json.loads(saved[0].read_text())
     kept: list[str] = []
     skip = False
     for word in arguments:  # the run's own -i (a fine-tuned start) is replaced by the checkpoint

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import pickle
+import re
 import signal
 import subprocess
 import sys
@@ -253,3 +254,44 @@ def test_resume_of_a_finished_run_changes_nothing(tmp_path: Path) -> None:
     with pytest.raises(SystemExit, match="finished: its final model"):
         main(["train", "--resume", str(run_dir)])
     assert (run_dir / f"{ENV_NAME}.zip").read_bytes() == final
+
+
+def test_a_damaged_checkpoint_is_named_before_the_run_resumes(tmp_path: Path) -> None:
+    from stable_baselines3 import SAC
+
+    from sb3_gcrl.cli import main
+    from sb3_gcrl.common.checkpoints import check_checkpoint
+
+    model = SAC("MlpPolicy", "Pendulum-v1", learning_starts=50, policy_kwargs={"net_arch": [8]}, seed=0)
+    model.learn(60)
+    checkpoint = save_checkpoint(model, tmp_path, "Pendulum-v1")
+    check_checkpoint(checkpoint, SAC)  # a whole one passes
+    (tmp_path / "Pendulum-v1").mkdir()
+    (tmp_path / "Pendulum-v1" / "sb3_gcrl_train_args.json").write_text(json.dumps(["--algo", "sac"]))
+    (tmp_path / "best_model.zip").write_bytes((checkpoint / "model.zip").read_bytes())
+    whole = {path.name: path.read_bytes() for path in checkpoint.iterdir()}
+
+    def refusal() -> str:
+        with pytest.raises(SystemExit) as refused:
+            main(["train", "--resume", str(tmp_path)])
+        message = str(refused.value.code)
+        assert "Restore the file from a backup" in message and str(tmp_path / "best_model.zip") in message
+        for name, data in whole.items():
+            (checkpoint / name).write_bytes(data)
+        return message
+
+    buffer = checkpoint / "replay_buffer.pkl"
+    buffer.write_bytes(whole["replay_buffer.pkl"][:1000])
+    assert re.search(
+        r"replay_buffer\.pkl is damaged: 1,000 bytes where the checkpoint wrote [\d,]+ \(cut off", refusal()
+    )
+    manifest = json.loads(whole["checkpoint.json"])
+    del manifest["sizes"]  # a checkpoint that recorded no sizes
+    (checkpoint / "checkpoint.json").write_text(json.dumps(manifest))
+    buffer.write_bytes(whole["replay_buffer.pkl"][:1000])
+    assert "replay_buffer.pkl is damaged: its 1,000 bytes end before the end of the pickle" in refusal()
+    (checkpoint / "checkpoint.json").write_text(json.dumps(manifest))
+    (checkpoint / "env_state.pkl").write_bytes(b"")
+    assert re.search(r"env_state\.pkl is damaged: it does not load \(EOFError", refusal())
+    (checkpoint / "model.zip").write_bytes(whole["model.zip"][: len(whole["model.zip"]) // 2])
+    assert "model.zip is not a zip archive, or a truncated one" in refusal()

@@ -9,12 +9,16 @@ A checkpoint is a folder ``<run>/checkpoints/<N>_steps/`` holding
   counts of the goal schedulers, counters, their generators: :meth:`~sb3_gcrl.wrappers.mode.TrainingModeMixin.
   run_state`);
 * ``rng_state.pkl``: the global generators of Python, numpy and torch;
-* ``checkpoint.json``: the step count, written last.
+* ``checkpoint.json``: the step count and the size of every other file, written last.
 
 The layout is RL-Zoo's for ``-i``: a model file with ``replay_buffer.pkl`` and ``<env name>/vecnormalize.pkl``
 beside it. The set is written into a temporary folder that is renamed when complete, and ``<run>/checkpoints/latest``
 names the newest complete set (replaced atomically), so a process killed while saving leaves the previous checkpoint
 intact. Older checkpoints are deleted once a newer one is complete.
+
+Before a run resumes, :func:`check_checkpoint` reads the set through (file sizes, the model archive's checksums, the
+pickles) and names a damaged file, so that a truncated or emptied file fails before any work, not deep inside a
+load.
 
 What is not saved: the simulator's physical state (a resumed run starts with a physical reset, as after a hard
 reset) and the steps taken after the checkpoint (a killed run loses them; an interrupted ``sb3-gcrl train`` saves
@@ -81,7 +85,8 @@ def save_checkpoint(model: BaseAlgorithm, run_dir: str | Path, env_name: str) ->
     (partial / ENV_STATE_FILE).write_bytes(pickle.dumps(env_states))
     rng = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": th.get_rng_state()}
     (partial / RNG_STATE_FILE).write_bytes(pickle.dumps(rng))
-    (partial / MANIFEST_FILE).write_text(json.dumps({"num_timesteps": int(model.num_timesteps)}))
+    sizes = {path.relative_to(partial).as_posix(): path.stat().st_size for path in partial.rglob("*") if path.is_file()}
+    (partial / MANIFEST_FILE).write_text(json.dumps({"num_timesteps": int(model.num_timesteps), "sizes": sizes}))
     target = root / name
     shutil.rmtree(target, ignore_errors=True)  # a checkpoint of the same step (an interruption right after a save)
     partial.rename(target)
@@ -115,6 +120,55 @@ def latest_checkpoint(run_dir: str | Path) -> Path:
 def checkpoint_steps(checkpoint: str | Path) -> int:
     """The env steps a checkpoint was taken at."""
     return int(json.loads((Path(checkpoint) / MANIFEST_FILE).read_text())["num_timesteps"])
+
+
+def check_checkpoint(checkpoint: str | Path, algo_class: type) -> None:
+    """Check that every file of a checkpoint is whole before a run resumes from it: each file has the size the
+    checkpoint wrote (recorded in :data:`MANIFEST_FILE`), the model passes
+    :func:`~sb3_gcrl.common.saving.check_model_file` (the check of ``load``), the small pickles load, and the replay
+    buffer ends as a complete pickle does.
+
+    :param checkpoint: the checkpoint's folder.
+    :param algo_class: the run's algorithm (its model file must be one of this class).
+    :raises CheckpointError: naming the damaged file and what is wrong with it.
+    """
+    from sb3_gcrl.common.saving import ModelFileError, check_model_file
+
+    checkpoint = Path(checkpoint)
+
+    def damaged(name: str, what: str) -> CheckpointError:
+        return CheckpointError(f"{checkpoint / name} is damaged: {what}")
+
+    try:
+        manifest = json.loads((checkpoint / MANIFEST_FILE).read_text())
+        int(manifest["num_timesteps"])
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise damaged(MANIFEST_FILE, f"{type(error).__name__}: {error}") from None
+    try:
+        check_model_file(checkpoint / MODEL_FILE, algo_class)
+    except (ModelFileError, OSError) as error:  # the message names the file
+        raise CheckpointError(str(error)) from None
+    for name, size in manifest.get("sizes", {}).items():
+        path = checkpoint / name
+        if not path.is_file():
+            raise damaged(name, "the file is missing")
+        if path.stat().st_size != size:
+            raise damaged(
+                name, f"{path.stat().st_size:,} bytes where the checkpoint wrote {size:,} (cut off or altered)"
+            )
+    for name in (ENV_STATE_FILE, RNG_STATE_FILE):
+        try:
+            pickle.loads((checkpoint / name).read_bytes())
+        except Exception as error:  # a damaged pickle raises almost anything
+            raise damaged(name, f"it does not load ({type(error).__name__}: {error})") from None
+    replay_buffer = checkpoint / REPLAY_BUFFER_FILE
+    if replay_buffer.is_file():
+        with replay_buffer.open("rb") as file:
+            file.seek(0, os.SEEK_END)
+            end = file.tell()
+            file.seek(max(0, end - 1))
+            if file.read(1) != pickle.STOP:
+                raise damaged(REPLAY_BUFFER_FILE, f"its {end:,} bytes end before the end of the pickle (cut off)")
 
 
 def restore_checkpoint(model: BaseAlgorithm, checkpoint: str | Path) -> None:
