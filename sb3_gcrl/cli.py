@@ -261,14 +261,16 @@ def _check_config(argv: list[str], resolved: ResolvedConfig) -> None:
     """Stop before training when the section (with the ``-params`` overrides) has a key that the algorithm does not
     take (:func:`~sb3_gcrl.zoo_config.check_hyperparameters`, with close matches), uses a mode-switched wrapper
     without its callback (:func:`~sb3_gcrl.zoo_config.check_mode_switching_callbacks`), or has no budget of at least
-    one step (:func:`~sb3_gcrl.zoo_config.run_budget`: ``-n``, else the section's ``n_timesteps``), or when the log
-    folder (``-f``) cannot be written (:func:`~sb3_gcrl.common.validation.check_writable_folder`): the checks of
-    ``sb3-gcrl compare``."""
+    one step (:func:`~sb3_gcrl.zoo_config.run_budget`: ``-n``, else the section's ``n_timesteps``), when the model of
+    ``-i`` is not one that the algorithm loads (:func:`~sb3_gcrl.common.saving.check_model_file`, the check of our
+    algorithms' ``load``), or when the log folder (``-f``) cannot be written
+    (:func:`~sb3_gcrl.common.validation.check_writable_folder`): the checks of ``sb3-gcrl compare``."""
     from rl_zoo3.utils import ALGOS
 
     from sb3_gcrl.algorithms import ALGORITHMS
+    from sb3_gcrl.common.saving import check_model_file
     from sb3_gcrl.common.validation import check_writable_folder
-    from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks, run_budget
+    from sb3_gcrl.zoo_config import algorithm_class, check_hyperparameters, check_mode_switching_callbacks, run_budget
 
     overrides, flag = _overrides(argv)
     algo = _option_value(argv, "--algo")
@@ -282,6 +284,9 @@ def _check_config(argv: list[str], resolved: ResolvedConfig) -> None:
         if n_timesteps is None or n_timesteps.lstrip("-").isdigit():  # else RL-Zoo's parser names the mistake
             where = f"{flag} n_timesteps" if "n_timesteps" in overrides else resolved.where
             run_budget(section, where, None if n_timesteps is None else int(n_timesteps))
+        trained_agent = _option_value(argv, "-i", "--trained-agent")
+        if algo is not None and trained_agent and Path(trained_agent).is_file():  # else RL-Zoo names the mistake
+            check_model_file(trained_agent, algorithm_class(algo))
         check_writable_folder("the log folder (-f)", _option_value(argv, "-f", "--log-folder") or "logs")
     except ValueError as error:
         raise SystemExit(f"sb3-gcrl train: {error}") from None

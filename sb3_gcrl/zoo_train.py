@@ -13,6 +13,8 @@ model, with the step counter at 0. :class:`ResumableExperimentManager` keeps eve
   with the run's own arguments, the step counter where it stopped, the remaining budget, and the monitor CSV and
   evaluation history extended rather than overwritten (evaluations after the checkpoint are dropped: they are
   run again);
+* a run that fails before training starts (a model file that does not load, an env the algorithm cannot take)
+  leaves no run folder behind (``enjoy`` would pick it as the latest run and find no model);
 * a variant's section (``--variant NAME``: the key ``<env id>@NAME``, which RL-Zoo does not read) is written, keyed
   by the plain env id, to the run's parameter folder (:data:`CONFIG_FILE`), which RL-Zoo then reads and a resumed
   run reads again.
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import shutil
 import signal
 import sys
 import threading
@@ -75,6 +78,8 @@ class ResumableExperimentManager(ExperimentManager):
         super().__init__(*args, **kwargs)
         #: whether training stopped on KeyboardInterrupt (Ctrl-C)
         self.interrupted = False
+        #: whether the run folder is this run's own, made by it (a failed start removes it)
+        self.new_folder = resume_from is None and not Path(self.save_path).exists()
         self.resume_from = resume_from
         self._checkpoint: Path | None = None
         self._finished_before = False
@@ -89,6 +94,16 @@ class ResumableExperimentManager(ExperimentManager):
             self.section_file.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_text(self.section_file, section.to_yaml())
             self.config = self.args.conf_file = str(self.section_file)
+
+    def setup_experiment(self) -> tuple[BaseAlgorithm, dict[str, Any]] | None:
+        """RL-Zoo's setup (hyperparameters, envs, model); when it fails, the new run's folder is removed, so that
+        no half-made run (a folder without a model) is left for ``enjoy`` to pick as the latest."""
+        try:
+            return super().setup_experiment()
+        except BaseException:
+            if self.new_folder:
+                shutil.rmtree(self.save_path, ignore_errors=True)
+            raise
 
     def save_trained_model(self, model: BaseAlgorithm) -> None:
         """RL-Zoo's final save, unless a resumed run had nothing left to train (its files stay as they are)."""

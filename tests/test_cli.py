@@ -416,3 +416,23 @@ def test_a_read_only_or_full_output_folder_is_refused_before_work_starts(
     train_message, compare_message = _refused_everywhere(tmp_path, *argvs, capsys)
     assert re.search(r"The log folder \(-f\) .*logs is on a full disk \(4,096 bytes free\): free some", train_message)
     assert "The output folder (--output)" in compare_message and "full disk (4,096 bytes free)" in compare_message
+
+
+def test_a_train_that_fails_at_start_leaves_no_run_folder(tmp_path: Path) -> None:
+    config = tmp_path / "her.yml"  # HER needs Dict observations: the model cannot be built on Pendulum
+    config.write_text(
+        "Pendulum-v1:\n  n_timesteps: 100\n  policy: MlpPolicy\n  replay_buffer_class: HerReplayBuffer\n"
+        "  learning_starts: 10\n"
+    )
+    logs = tmp_path / "logs"
+    argv = ["train", "--algo", "sac", "--env", "Pendulum-v1", "-conf", str(config), "-f", str(logs)]
+    with pytest.raises(Exception) as failed:
+        main(argv)
+    assert not isinstance(failed.value, SystemExit)  # RL-Zoo's own setup failed, after it made the run folder
+    assert (logs / "sac").is_dir() and not list((logs / "sac").iterdir())
+    damaged = tmp_path / "damaged.zip"  # a model file that does not load is refused before RL-Zoo starts
+    damaged.write_bytes(b"PK\x03\x04 not a whole archive")
+    config.write_text("Pendulum-v1:\n  n_timesteps: 100\n  policy: MlpPolicy\n")
+    with pytest.raises(SystemExit, match=r"damaged\.zip is not a zip archive, or a truncated one"):
+        main([*argv, "-i", str(damaged)])
+    assert not list((logs / "sac").iterdir())
