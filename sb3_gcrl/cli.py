@@ -308,9 +308,14 @@ def display_missing() -> bool:
     return sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+#: render modes for which ``render_mode="human"`` opens a window: the env's own (MuJoCo's viewer, pygame), or
+#: gymnasium's ``HumanRendering`` wrapper (pygame), which ``gym.make`` applies to an env that only draws images
+WINDOW_RENDER_MODES = frozenset({"human", "rgb_array", "rgb_array_list"})
+
+
 def renders_to_a_window(env_id: str, gym_packages: Sequence[str] = ()) -> bool:
-    """Whether ``env_id`` has the ``"human"`` render mode (a window: MuJoCo's viewer, pygame) that RL-Zoo's ``enjoy``
-    asks for unless ``--no-render``.
+    """Whether RL-Zoo's ``enjoy`` (``render_mode="human"`` unless ``--no-render``) opens a window for ``env_id``: the
+    env renders to one itself, or draws images that gymnasium shows in a pygame window (:data:`WINDOW_RENDER_MODES`).
 
     :param env_id: the env of ``--env``.
     :param gym_packages: the modules of ``--gym-packages`` (they register ``env_id``).
@@ -327,7 +332,7 @@ def renders_to_a_window(env_id: str, gym_packages: Sequence[str] = ()) -> bool:
     except gym.error.Error:
         return False
     try:
-        return "human" in env.metadata.get("render_modes", [])
+        return bool(WINDOW_RENDER_MODES & set(env.metadata.get("render_modes") or []))
     finally:
         env.close()
 
@@ -335,15 +340,17 @@ def renders_to_a_window(env_id: str, gym_packages: Sequence[str] = ()) -> bool:
 def enjoy(argv: list[str]) -> int:
     """``sb3-gcrl enjoy``: RL-Zoo's ``enjoy`` with this package's algorithms available.
 
-    On a Linux machine without a display (:func:`display_missing`), an env that renders to a window runs without
-    rendering (RL-Zoo's ``--no-render``, with a note), instead of aborting in MuJoCo's GLFW viewer.
+    On a Linux machine without a display (:func:`display_missing`), an env that renders to a window
+    (:func:`renders_to_a_window`) runs without rendering (RL-Zoo's ``--no-render``, with a note), instead of aborting
+    in MuJoCo's GLFW viewer or failing in pygame's (``XDG_RUNTIME_DIR is invalid``).
 
     :param argv: ``rl_zoo3 enjoy`` arguments.
     :return: exit code.
     """
     from rl_zoo3.enjoy import enjoy as zoo_enjoy
 
-    if "--no-render" not in argv and display_missing():
+    asks_for_help = "-h" in argv or "--help" in argv
+    if "--no-render" not in argv and not asks_for_help and display_missing():
         env_id = _option_value(argv, "--env") or "CartPole-v1"  # RL-Zoo's default env
         if renders_to_a_window(env_id, _option_values(argv, "--gym-packages")):
             print(

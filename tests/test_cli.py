@@ -221,7 +221,12 @@ def test_sb3_gcrl_train_then_enjoy_our_algorithm(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(
     ("env_id", "display", "no_render"),
-    [("GCRL/PointUMaze-v0", None, True), ("GCRL/PointUMaze-v0", ":0", False), ("GCRL/GrowingTree-v0", None, False)],
+    [
+        ("GCRL/PointUMaze-v0", None, True),
+        ("GCRL/PointUMaze-v0", ":0", False),
+        ("GCRL/GrowingTree-v0", None, True),  # images, which gymnasium shows in a pygame window
+        ("GCRL/GrowingTree-v0", ":0", False),
+    ],
 )
 def test_enjoy_without_a_display_runs_window_envs_without_rendering(
     monkeypatch: pytest.MonkeyPatch,
@@ -241,24 +246,28 @@ def test_enjoy_without_a_display_runs_window_envs_without_rendering(
     else:
         monkeypatch.setenv("DISPLAY", display)
     assert main(["enjoy", "--algo", "cec", "--env", env_id, "-f", "logs"]) == 0
-    assert ("--no-render" in seen[0]) is no_render  # GrowingTree has no window to open ("ansi", "rgb_array")
+    assert ("--no-render" in seen[0]) is no_render
     assert ("no display" in capsys.readouterr().err) is no_render
+    monkeypatch.setattr(rl_zoo3.enjoy, "enjoy", lambda: None)
+    assert main(["enjoy", "--help"]) == 0 and "no display" not in capsys.readouterr().err  # a note of no env
 
 
-def test_enjoy_of_a_mujoco_env_on_a_machine_without_a_display_does_not_abort(tmp_path: Path) -> None:
+@pytest.mark.parametrize("env_id", ["GCRL/PointUMaze-v0", "GCRL/GrowingTree-v0"])  # MuJoCo's viewer, pygame
+def test_enjoy_on_a_machine_without_a_display_runs_without_rendering(tmp_path: Path, env_id: str) -> None:
     logs = tmp_path / "logs"
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    train = ["train", "--algo", "cec", "--env", "GCRL/PointUMaze-v0", "-n", "200", "--eval-freq", "-1"]
+    train = ["train", "--algo", "cec", "--env", env_id, "-n", "200", "--eval-freq", "-1"]
     result = subprocess.run(
         [sys.executable, "-m", "sb3_gcrl", *train, "-f", str(logs)], capture_output=True, text=True, timeout=300
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    enjoy = ["enjoy", "--algo", "cec", "--env", "GCRL/PointUMaze-v0", "-f", str(logs), "-n", "20"]
+    enjoy = ["enjoy", "--algo", "cec", "--env", env_id, "-f", str(logs), "-n", "20"]
     result = subprocess.run(
         [sys.executable, "-m", "sb3_gcrl", *enjoy], capture_output=True, text=True, timeout=300, env=env
     )
     assert result.returncode == 0, result.stderr[-3000:]  # 134 (SIGABRT in GLFW) before
     assert "runs without rendering (--no-render)" in result.stderr
+    assert "XDG_RUNTIME_DIR" not in result.stderr  # pygame's window, before
 
 
 def test_train_runs_torch_on_one_thread_unless_num_threads_is_given(
