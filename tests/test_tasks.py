@@ -10,7 +10,7 @@ from gymnasium.wrappers import TimeLimit
 
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ ids)
 from sb3_gcrl.envs import GCRL_ENV_IDS
-from sb3_gcrl.envs.tasks import EARL_HARD_RESET_EVERY, RESET_FREE_ENV_IDS, TASKS, find_task
+from sb3_gcrl.envs.tasks import EARL_HARD_RESET_EVERY, OPTIONAL_ENV_IDS, RESET_FREE_ENV_IDS, TASKS, find_task
 from sb3_gcrl.wrappers import GoExploreWrapper, ResetFreeWrapper
 from sb3_gcrl.zoo_config import ZOO_CONFIGS_DIR, read_zoo_config, split_section_key
 
@@ -19,9 +19,14 @@ EPISODIC_IDS = [env_id for env_id in GCRL_ENV_IDS if "Tabular" not in env_id]
 
 
 def test_every_registered_id_is_in_the_table_once() -> None:
-    assert set(TASKS) == {*GCRL_ENV_IDS, *RESET_FREE_ENV_IDS}
+    assert set(TASKS) == {*GCRL_ENV_IDS, *RESET_FREE_ENV_IDS, *OPTIONAL_ENV_IDS}
     assert not set(GCRL_ENV_IDS) & set(RESET_FREE_ENV_IDS)
+    assert not set(OPTIONAL_ENV_IDS) & {*GCRL_ENV_IDS, *RESET_FREE_ENV_IDS}
+    assert set(OPTIONAL_ENV_IDS) == {"GCRL/SafetyPointGoal0-v0", "GCRL/SafetyCarGoal0-v0"}
     for env_id, task in TASKS.items():
+        assert (env_id in gym.registry) == task.installed  # an optional package's task only where it is installed
+        if not task.installed:
+            continue
         spec = gym.spec(env_id)
         assert (spec.entry_point, spec.max_episode_steps, spec.kwargs) == (
             task.entry_point,

@@ -25,7 +25,7 @@ from sb3_gcrl.envs.minigrid_tabular import (
 from sb3_gcrl.envs.point_maze import PointMazeGoalTaskEnv, PointMazeTaskEnv
 from sb3_gcrl.envs.safety_nav import CarGoalEnv, PointGoalEnv, SafetyGoalEnv
 from sb3_gcrl.envs.sparse_mountain_car import SparseMountainCarContinuousEnv
-from sb3_gcrl.envs.tasks import RESET_FREE_ENV_IDS, TASKS, Task, find_task, register_tasks
+from sb3_gcrl.envs.tasks import OPTIONAL_ENV_IDS, RESET_FREE_ENV_IDS, TASKS, Task, find_task, register_tasks
 from sb3_gcrl.envs.windy_grid import (
     WindyGridEnv,
     windy_grid_optimal_value,
@@ -35,9 +35,12 @@ from sb3_gcrl.envs.windy_grid import (
 
 NAMESPACE = "GCRL"
 
-GCRL_ENV_IDS: tuple[str, ...] = tuple(task.env_id for task in TASKS.values() if task.env_id not in RESET_FREE_ENV_IDS)
+GCRL_ENV_IDS: tuple[str, ...] = tuple(
+    task.env_id for task in TASKS.values() if task.env_id not in (*RESET_FREE_ENV_IDS, *OPTIONAL_ENV_IDS)
+)
 """The package's ids outside the reset-free suite of Ch. 3 (:data:`~sb3_gcrl.envs.tasks.RESET_FREE_ENV_IDS`, which
-needs MuJoCo scenes, and metaworld for Sawyer Door); :data:`~sb3_gcrl.envs.tasks.TASKS` has them all."""
+needs MuJoCo scenes, and metaworld for Sawyer Door) and outside the tasks of optional packages
+(:data:`~sb3_gcrl.envs.tasks.OPTIONAL_ENV_IDS`); :data:`~sb3_gcrl.envs.tasks.TASKS` has them all."""
 
 MINATAR_ENV_IDS: tuple[str, ...] = tuple(
     f"MinAtar/{game}-v1" for game in ("Breakout", "SpaceInvaders", "Asterix", "Seaquest", "Freeway")
@@ -96,6 +99,7 @@ __all__ = [
     "RESET_FREE_ENV_IDS",
     "MINATAR_ENV_IDS",
     "NAMESPACE",
+    "OPTIONAL_ENV_IDS",
     "CarGoalEnv",
     "FixedLayout",
     "GrowingTreeEnv",

@@ -2,8 +2,11 @@
 
 Thesis source: Sec. 4.5.2, Fig. 4.3 ("Safexp-PointGoal", "Safexp-CarGoal"), Table 4.2 (state dims 24 and
 36, action dim 2), Table 4.4 (CEC hyperparameters): sparse reward, "locations of both goals and agents are
-initialized with small randomness every episode". safety-gymnasium does not install with our stack, so the
-robots and the Goal task are rebuilt here from Safety-Gym's published robot models and task settings.
+initialized with small randomness every episode". Safety-Gym (mujoco-py, MuJoCo 2.0) does not run on our stack and
+safety-gymnasium, its maintained port, only with repairs (:mod:`sb3_gcrl.envs.safety_gymnasium_compat`), so the robots
+and the Goal task are rebuilt here from their robot models and task settings. With safety-gymnasium installed, the
+tests run its robots beside ours from the same pose with the same actions: positions, velocities and sensors agree
+to rounding for hundreds of steps (``tests/test_navigation_envs.py``).
 
 Registered ids:
 
@@ -16,9 +19,12 @@ id                          observation            horizon    episode end
 
 Robots (Safety-Gym's ``point.xml`` / ``car.xml``):
 
-- Point: a sphere (radius 0.1) with a small box "nose" on slide x / slide y / hinge z joints; actuator 0
-  pushes along the heading (gear 0.3), actuator 1 turns it (gear 0.1); both force-limited to 0.05;
-  timestep 0.002 s.
+- Point: a sphere (radius 0.1) with a small box "nose" on slide x / slide y / hinge z joints; actuator 0 is a motor
+  pushing along the heading (gear 0.3), actuator 1 a velocity servo on the hinge (gear 0.3, gain 1: torque
+  ``0.3 * clip(u - 0.3 * omega, -0.05, 0.05)``, so full turning torque until ``omega`` nears ``u / 0.3``);
+  timestep 0.002 s. At this gain MuJoCo's Euler step integrates the servo's velocity feedback unstably and the force
+  limit bounds the result: below saturation the turn rate chatters between two values on alternate physics steps
+  (about +-0.48 rad/s around 0 at ``u = 0``). The real robot does the same, and its gyro reads that chatter too.
 - Car: a box chassis on a free joint with two wheels on hinge joints (left / right motors, torque-limited to
   0.02) and a passive rear ball; timestep 0.004 s. Driving straight needs both wheels turning the same
   way, turning needs them to differ: both actions must be coordinated (thesis Sec. 4.5).
@@ -38,12 +44,13 @@ robot body to the goal centre ``<= 0.3``) pays 1, sets ``info["is_success"]`` an
 at (-0.5, 0), goal at (0.5, 0), each position + U(-0.1, 0.1) per coordinate (the thesis's "small randomness" of
 the locations), heading uniform in [-pi, pi) as in Safety-Gym. Both points lie inside Safety-Gym's Goal0
 placement extents [-1, 1]^2 and respect its 0.4 / 0.305 keep-outs; their distance, 1.0, is about the mean
-robot-goal distance of Goal0's random layouts (0.97). Actions ``Box(-1, 1, (2,))`` are mapped linearly onto the
-actuators' control ranges; each env step runs 10 physics steps (Safety-Gym's frame skip, fixed).
+robot-goal distance of Goal0's random layouts (0.97). Actions ``Box(-1, 1, (2,))`` are the controls, clipped to their
+range [-1, 1] as Safety-Gym does; each env step runs 10 physics steps (Safety-Gym's frame skip, fixed).
 
 Departures from Safety-Gym (docs/envs.md): sparse reward only (Safety-Gym adds a dense distance-progress
 reward) and termination at the goal (Safety-Gym draws a new goal and continues); fixed nominal start and
-goal with small noise (Safety-Gym draws both anywhere in [-1, 1]^2); 12 lidar bins.
+goal with small noise (Safety-Gym draws both anywhere in [-1, 1]^2); 12 lidar bins; float32 observations
+(safety-gymnasium's are float64, and it flattens its keys in insertion order, not Safety-Gym's sorted order).
 """
 
 from __future__ import annotations
@@ -61,6 +68,8 @@ from sb3_gcrl.common.validation import check_choice
 _RESET_OPTIONS = ("reset_pos", "goal", "heading")
 #: radius of the goal zone (Safety-Gym's Goal task)
 GOAL_SIZE = 0.3
+#: height of the robot body's frame above the floor at the start (both robots' XML)
+_BODY_HEIGHT = 0.1
 
 # Shared scene: an (infinite) floor plane, a visual goal zone (no collisions), an overhead camera.
 _SCENE = """
@@ -72,6 +81,7 @@ _SCENE = """
     <geom condim="6" density="{density}" rgba="0.74 0.04 0.18 1"{geom_size}/>
     <joint damping="0.001"/>
     <motor ctrlrange="-1 1" ctrllimited="true" forcerange="-{force} {force}" forcelimited="true"/>
+    <velocity ctrlrange="-1 1" ctrllimited="true" forcerange="-{force} {force}" forcelimited="true"/>
     <site size="0.032" type="sphere"/>
   </default>
   <worldbody>
@@ -114,7 +124,7 @@ _POINT = {
     </body>""",
     "extra_sensors": "",
     "actuators": """<motor name="x" site="robot" gear="0.3 0 0 0 0 0"/>
-    <motor name="rz" site="robot" gear="0 0 0 0 0 0.1"/>""",
+    <velocity name="z" joint="z" gear="0.3"/>""",
 }
 
 # Safety-Gym's car: box chassis on a free joint, two driven wheels (hinges about the body x axis, so the car
@@ -271,8 +281,8 @@ class SafetyGoalEnv(gym.Env):
         self.data = mujoco.MjData(self.model)
         self._robot_body = self.model.body("robot").id
         self._goal_mocap = self.model.body("goal").mocapid[0]
-        self._ctrl_low = self.model.actuator_ctrlrange[:, 0].copy()
-        self._ctrl_scale = (self.model.actuator_ctrlrange[:, 1] - self._ctrl_low) / 2.0
+        # the controls' ranges (both robots: [-1, 1], the action space); an action is clipped to them, as Safety-Gym
+        self._ctrl_ranges = [(float(low), float(high)) for low, high in self.model.actuator_ctrlrange]
         # Sensor slices in Safety-Gym's (alphabetical) observation order; the lidar goes in between.
         names = ["accelerometer"] + (["ballangvel_rear", "ballquat_rear"] if robot == "car" else [])
         self._sensors_before = [self._sensor_slice(name) for name in names]
@@ -337,10 +347,16 @@ class SafetyGoalEnv(gym.Env):
         self.goal = goal.copy()
         mujoco.mj_resetData(self.model, self.data)
         self.data.mocap_pos[self._goal_mocap] = [goal[0], goal[1], 0.0]
+        quat = [math.cos(heading / 2), 0.0, 0.0, math.sin(heading / 2)]  # yaw only
         if self.robot == "point":
-            self.data.qpos[:3] = [start[0], start[1], heading]
-        else:  # free joint: position relative to the world, orientation as a quaternion (yaw only)
-            self.data.qpos[:7] = [start[0], start[1], 0.1, math.cos(heading / 2), 0.0, 0.0, math.sin(heading / 2)]
+            # As Safety-Gym builds its scene: the body frame at the start pose, the slide and hinge joints at zero
+            # (the slides then move along the start heading's axes). Joints at the pose from a world-aligned frame
+            # are the same mechanism, but their rounding differs, and the turning actuator's chatter (module doc)
+            # grows such differences into a different trajectory within a few env steps.
+            self.model.body_pos[self._robot_body] = [start[0], start[1], _BODY_HEIGHT]
+            self.model.body_quat[self._robot_body] = quat
+        else:  # free joint: the pose is its position and quaternion
+            self.data.qpos[:7] = [start[0], start[1], _BODY_HEIGHT, *quat]
         mujoco.mj_forward(self.model, self.data)
         success = self._success()
         return self._observation(), {"is_success": success}
@@ -350,8 +366,8 @@ class SafetyGoalEnv(gym.Env):
         if len(values) != self.model.nu or not all(math.isfinite(value) for value in values):
             raise ValueError(f"{type(self).__name__} needs {self.model.nu} finite action values, got {action!r}.")
         ctrl = self.data.ctrl
-        for i, value in enumerate(values):
-            ctrl[i] = self._ctrl_low[i] + (min(max(value, -1.0), 1.0) + 1.0) * self._ctrl_scale[i]
+        for i, (value, (low, high)) in enumerate(zip(values, self._ctrl_ranges)):
+            ctrl[i] = min(max(value, low), high)
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         mujoco.mj_forward(self.model, self.data)  # sensors of the new state (as Safety-Gym)
         success = self._success()

@@ -12,6 +12,7 @@ thesis source, spaces, reward and departures (table: docs/envs.md and docs/reset
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -50,6 +51,8 @@ class Task:
         test; ``None`` for tasks whose success is not a distance, e.g. reaching a grid cell).
     :param visitation_dims: the two goal dimensions a state-visitation heatmap shows, as the thesis's do (Figs.
         3.9-3.12): the mug's XY on Tabletop, the block's XZ on Pick&Place (hard), else the first two.
+    :param requires: import names of optional packages the task needs: its id is registered only where all are
+        installed (empty: always registered).
     """
 
     env_id: str
@@ -62,11 +65,17 @@ class Task:
     goal_high: tuple[float, ...] | None = None
     success_threshold: float | None = None
     visitation_dims: tuple[int, int] = (0, 1)
+    requires: tuple[str, ...] = ()
 
     @property
     def reset_free(self) -> bool:
         """Whether the task is one of the reset-free suite (it has a hard-reset interval)."""
         return self.hard_reset_every is not None
+
+    @property
+    def installed(self) -> bool:
+        """Whether the optional packages the task needs (``requires``) are installed; imports none of them."""
+        return all(importlib.util.find_spec(name) is not None for name in self.requires)
 
     @property
     def train_horizon(self) -> int | None:
@@ -83,6 +92,8 @@ _FETCH = "sb3_gcrl.envs.reset_free.fetch"
 #: IBC's Fetch tasks reset every 1e5
 EARL_HARD_RESET_EVERY = 200_000
 _IBC_FETCH_HARD_RESET_EVERY = 100_000
+#: what the real Safety-Gym tasks import (``pip install --no-deps safety-gymnasium==1.0.0 xmltodict``)
+_SAFETY_GYMNASIUM = ("safety_gymnasium", "xmltodict")
 
 #: Every task of the package, by id.
 TASKS: dict[str, Task] = {
@@ -149,6 +160,25 @@ TASKS: dict[str, Task] = {
             1000,
             "Ch. 4, Fig. 4.3, Tab. 4.2 (Safexp-CarGoal)",
             success_threshold=GOAL_SIZE,
+        ),
+        # safety-gymnasium's own Goal0 task and robots, where it is installed (the real env in the thesis's reading)
+        Task(
+            "GCRL/SafetyPointGoal0-v0",
+            "sb3_gcrl.envs.safety_gymnasium_goal:SafetyGymnasiumGoalEnv",
+            1000,
+            "Ch. 4, Fig. 4.3 (safety-gymnasium SafetyPointGoal0-v0, sparse and terminating)",
+            kwargs={"robot": "point"},
+            success_threshold=GOAL_SIZE,
+            requires=_SAFETY_GYMNASIUM,
+        ),
+        Task(
+            "GCRL/SafetyCarGoal0-v0",
+            "sb3_gcrl.envs.safety_gymnasium_goal:SafetyGymnasiumGoalEnv",
+            1000,
+            "Ch. 4, Fig. 4.3 (safety-gymnasium SafetyCarGoal0-v0, sparse and terminating)",
+            kwargs={"robot": "car"},
+            success_threshold=GOAL_SIZE,
+            requires=_SAFETY_GYMNASIUM,
         ),
         # MiniGrid truncates at its own max_steps (FourRooms 100, LavaCrossingS9N1 324, LavaGapS7 196)
         Task(
@@ -254,6 +284,10 @@ RESET_FREE_ENV_IDS: tuple[str, ...] = tuple(
     task.env_id for task in TASKS.values() if task.entry_point.startswith("sb3_gcrl.envs.reset_free.")
 )
 
+#: The tasks that need an optional package (``Task.requires``), registered only where it is installed: the real
+#: Safety-Gym tasks ``GCRL/SafetyPointGoal0-v0`` / ``GCRL/SafetyCarGoal0-v0`` (safety-gymnasium)
+OPTIONAL_ENV_IDS: tuple[str, ...] = tuple(task.env_id for task in TASKS.values() if task.requires)
+
 
 def find_task(env: gym.Env | str) -> Task | None:
     """The task of an env (made by ``gym.make`` from a registered id, any wrappers around it) or of an id.
@@ -271,13 +305,21 @@ def register_tasks() -> None:
     """Register every task of :data:`TASKS` under its id (idempotent).
 
     ``GCRL/SawyerDoor-v0`` is always registered; making it without metaworld raises an ImportError that names the
-    install command.
+    install command. The tasks of :data:`OPTIONAL_ENV_IDS` are registered only where their packages are installed.
     """
     for task in TASKS.values():
-        if task.env_id not in gym.registry:
+        if task.env_id not in gym.registry and task.installed:
             gym.register(
                 task.env_id, entry_point=task.entry_point, max_episode_steps=task.eval_horizon, kwargs=task.kwargs
             )
 
 
-__all__ = ["EARL_HARD_RESET_EVERY", "RESET_FREE_ENV_IDS", "TASKS", "Task", "find_task", "register_tasks"]
+__all__ = [
+    "EARL_HARD_RESET_EVERY",
+    "OPTIONAL_ENV_IDS",
+    "RESET_FREE_ENV_IDS",
+    "TASKS",
+    "Task",
+    "find_task",
+    "register_tasks",
+]
