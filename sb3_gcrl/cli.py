@@ -13,12 +13,13 @@ the algorithm does not take is refused before training, with close matches.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import itertools
 import os
 import sys
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -168,6 +169,35 @@ RESUME_NOTE = (
 )
 
 
+@contextlib.contextmanager
+def _train_options_in_help() -> Iterator[None]:
+    """Inside the block, RL-Zoo's ``train`` parser also lists the options that ``sb3-gcrl train`` takes out of the
+    command line before RL-Zoo parses it (``--variant``, ``--resume``), in its usage and help."""
+    import argparse
+    import types
+
+    import rl_zoo3.train
+
+    class TrainParser(argparse.ArgumentParser):
+        def parse_args(self, *args: Any, **kwargs: Any) -> Any:  # type: ignore[override]
+            ours = self.add_argument_group("options of sb3-gcrl train (not of rl_zoo3 train)")
+            ours.add_argument("--variant", metavar="NAME", help="train the section <env id>@NAME of the config")
+            ours.add_argument(
+                "--resume",
+                metavar="RUN_FOLDER",
+                help="continue the run in RUN_FOLDER (the 'Log path' it printed) from its newest checkpoint, with its "
+                "own arguments (no other option)",
+            )
+            return super().parse_args(*args, **kwargs)
+
+    zoo_argparse = rl_zoo3.train.argparse
+    rl_zoo3.train.argparse = types.SimpleNamespace(**{**vars(argparse), "ArgumentParser": TrainParser})  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        rl_zoo3.train.argparse = zoo_argparse
+
+
 def _with_default_num_threads(argv: list[str]) -> list[str]:
     """``argv`` with ``--num-threads 1`` (:data:`DEFAULT_NUM_THREADS`) added when it sets no thread count."""
     if _option_value(argv, "--num-threads") is not None:
@@ -191,7 +221,8 @@ def train(argv: list[str]) -> int:
 
     if "-h" in argv or "--help" in argv:
         print(NUM_THREADS_NOTE + "\n" + VARIANT_NOTE + "\n" + RESUME_NOTE + "\n")
-        return _run_zoo_script(rl_zoo3.train.train, "sb3-gcrl train", argv)
+        with _train_options_in_help():
+            return _run_zoo_script(rl_zoo3.train.train, "sb3-gcrl train", argv)
     resume_from = None
     if "--resume" in argv:
         if len(argv) != 2 or argv[0] != "--resume":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import shutil
@@ -445,3 +446,16 @@ def test_a_train_that_fails_at_start_leaves_no_run_folder(tmp_path: Path) -> Non
     with pytest.raises(SystemExit, match=r"damaged\.zip is not a zip archive, or a truncated one"):
         main([*argv, "-i", str(damaged)])
     assert not list((logs / "sac").iterdir())
+
+
+def test_train_help_lists_the_options_of_sb3_gcrl_train(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as done:
+        main(["train", "--help"])
+    assert done.value.code == 0
+    help_text = capsys.readouterr().out
+    usage = help_text[help_text.index("usage: sb3-gcrl train") :].split("\n\n")[0]
+    assert "[--variant NAME]" in usage and "[--resume RUN_FOLDER]" in usage
+    assert "--resume RUN_FOLDER   continue the run in RUN_FOLDER" in help_text
+    import rl_zoo3.train
+
+    assert rl_zoo3.train.argparse is argparse  # put back
