@@ -31,12 +31,14 @@ import numpy as np
 INSTALL_COMMAND = "pip install --no-deps safety-gymnasium==1.0.0 xmltodict"
 
 _PACKAGE = "safety_gymnasium"
+#: what must be importable: the package and the XML library its scene builder uses
+_REQUIRED = (_PACKAGE, "xmltodict")
 _patched = False
 
 
 def safety_gymnasium_available() -> bool:
     """Whether safety-gymnasium (and xmltodict, which it needs) is installed; imports neither."""
-    return all(importlib.util.find_spec(name) is not None for name in (_PACKAGE, "xmltodict"))
+    return all(importlib.util.find_spec(name) is not None for name in _REQUIRED)
 
 
 class _HashableArray(np.ndarray):
@@ -83,8 +85,9 @@ def _patch() -> None:
     global _patched
     if _patched:
         return
-    if not safety_gymnasium_available():
-        raise ModuleNotFoundError(f"safety-gymnasium and xmltodict are not installed: {INSTALL_COMMAND}")
+    missing = [name for name in _REQUIRED if importlib.util.find_spec(name) is None]
+    if missing:
+        raise ModuleNotFoundError(f"not installed: {', '.join(missing)} ({INSTALL_COMMAND})")
     if _PACKAGE not in sys.modules:
         _register_bare_package()
     colors = importlib.import_module(f"{_PACKAGE}.assets.color").COLOR
