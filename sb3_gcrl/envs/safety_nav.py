@@ -6,7 +6,7 @@ initialized with small randomness every episode". Safety-Gym (mujoco-py, MuJoCo 
 safety-gymnasium, its maintained port, only with repairs (:mod:`sb3_gcrl.envs.safety_gymnasium_compat`), so the robots
 and the Goal task are rebuilt here from their robot models and task settings. With safety-gymnasium installed, the
 tests run its robots beside ours from the same pose with the same actions: positions, velocities and sensors agree
-to rounding for hundreds of steps (``tests/test_navigation_envs.py``).
+to rounding for hundreds of steps (``tests/test_safety_gymnasium.py``).
 
 Registered ids:
 
