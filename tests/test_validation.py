@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -136,3 +137,14 @@ def test_the_old_module_path_still_works_with_a_deprecation_warning() -> None:
     with warnings.catch_warnings(), pytest.raises(AttributeError):
         warnings.simplefilter("ignore", DeprecationWarning)
         old.check_nothing  # noqa: B018
+
+
+def test_an_output_folder_is_checked_without_creating_it(tmp_path: Path) -> None:
+    from sb3_gcrl.common.validation import check_writable_folder
+
+    folder = tmp_path / "a" / "b"
+    assert check_writable_folder("the output folder", folder) == folder
+    assert list(tmp_path.iterdir()) == []  # probed in the nearest existing parent, nothing left
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ValueError, match=r"file is a file, not a folder; pass another output folder"):
+        check_writable_folder("the output folder", tmp_path / "file" / "out")

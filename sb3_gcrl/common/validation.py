@@ -304,8 +304,9 @@ MIN_FREE_BYTES = 1 << 20
 
 
 def check_writable_folder(name: str, folder: str | os.PathLike[str]) -> Path:
-    """Check, before work starts, that files can be written in ``folder`` (created with its parents when missing):
-    a small file is written there, synced and removed, and the disk must have :data:`MIN_FREE_BYTES` free.
+    """Check, before work starts, that files can be written in ``folder``: a small file is written, synced and removed
+    there (or, when the folder does not exist yet, in its nearest existing parent, where it would be created), and the
+    disk must have :data:`MIN_FREE_BYTES` free. Nothing is left behind.
 
     Without it a read-only or full folder fails at the run's first save, after the setup (or the training) it cost.
 
@@ -315,19 +316,26 @@ def check_writable_folder(name: str, folder: str | os.PathLike[str]) -> Path:
     :raises ValueError: naming the folder, what is wrong (the system's reason, or the free space) and the fix.
     """
     folder = Path(folder)
-    fix = f"pass another {name.removeprefix('the ')}, or make this one writable (permissions, a read-write mount)"
+    other = f"pass another {name.removeprefix('the ')}"
+    existing = folder.absolute()
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"Cannot write in {name} {folder}: {existing} is a file, not a folder; {other}")
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder) as probe:
+        with tempfile.TemporaryFile(dir=existing) as probe:
             probe.write(bytes(4096))
             probe.flush()
             os.fsync(probe.fileno())
     except OSError as error:
-        raise ValueError(f"Cannot write in {name} {folder} ({error.strerror or error}): {fix}") from None
-    free = shutil.disk_usage(folder).free
+        raise ValueError(
+            f"Cannot write in {name} {folder} ({error.strerror or error}): {other}, or make this one writable "
+            "(permissions, a read-write mount)"
+        ) from None
+    free = shutil.disk_usage(existing).free
     if free < MIN_FREE_BYTES:
         raise ValueError(
             f"{name[0].upper()}{name[1:]} {folder} is on a full disk ({free:,} bytes free): free some space there, or "
-            f"pass another {name.removeprefix('the ')}"
+            f"{other}"
         )
     return folder
