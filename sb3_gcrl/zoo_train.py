@@ -69,13 +69,21 @@ class ResumableExperimentManager(ExperimentManager):
         newest checkpoint's model.
     :param section: a section RL-Zoo cannot read from its file (a variant's): written to :data:`CONFIG_FILE` in the
         run's parameter folder, which becomes the run's config (also for ``--resume``).
+    :param save_arguments: write the ``sb3-gcrl train`` arguments to :data:`ARGUMENTS_FILE` (``--resume`` reads them;
+        ``sb3-gcrl compare``'s runs resume through ``compare`` instead).
     :param kwargs: RL-Zoo's ``ExperimentManager`` keyword arguments.
     """
 
     def __init__(
-        self, *args: Any, resume_from: Path | None = None, section: ResolvedConfig | None = None, **kwargs: Any
+        self,
+        *args: Any,
+        resume_from: Path | None = None,
+        section: ResolvedConfig | None = None,
+        save_arguments: bool = True,
+        **kwargs: Any,
     ) -> None:
         super().__init__(*args, **kwargs)
+        self.save_arguments = save_arguments
         #: whether training stopped on KeyboardInterrupt (Ctrl-C)
         self.interrupted = False
         #: whether the run folder is this run's own, made by it (a failed start removes it)
@@ -116,10 +124,13 @@ class ResumableExperimentManager(ExperimentManager):
         return self._checkpoint is not None
 
     def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
-        if self.resuming:  # the run's own config files stay as they were
+        if self.resuming:
             print(f"Resuming the run in {self.save_path} from {self._checkpoint}")
-            return
+            if (Path(self.params_path) / "config.yml").is_file():  # the run's own config files stay as they were
+                return
         super()._save_config(saved_hyperparams)
+        if not self.save_arguments:
+            return
         arguments = sys.argv[1:]
         if "--seed" not in arguments:  # RL-Zoo drew one: resume with it
             arguments += ["--seed", str(self.seed)]

@@ -870,3 +870,55 @@ def test_command_line_overrides_read_as_rl_zoo_writes_them() -> None:
     assert args.env_kwargs == [("heading_noise", 0.1)]
     with pytest.raises(SystemExit):
         build_parser().parse_args(["--hyperparams", "learning_rate"])
+
+
+def _worker_pid(run_dir: Path) -> int | None:
+    """The pid of the compare worker training ``run_dir`` (Linux: read from /proc)."""
+    for entry in Path("/proc").iterdir():
+        try:
+            words = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if b"sb3_gcrl.compare.worker" in words and str(run_dir).encode() in words:
+            return int(entry.name)
+    return None
+
+
+@pytest.mark.skipif(not Path("/proc/self/cmdline").exists(), reason="finds the worker through /proc")
+def test_a_killed_run_continues_from_its_checkpoint_when_the_command_is_run_again(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    config = tmp_path / "sac.yml"
+    config.write_text(
+        "Pendulum-v1:\n  n_timesteps: 4000\n  policy: MlpPolicy\n  learning_starts: 100\n  batch_size: 16\n"
+        "  policy_kwargs: dict(net_arch=[8])\n"
+    )
+    output = tmp_path / "out"
+    command = [
+        sys.executable, "-m", "sb3_gcrl", "compare", "-m", f"sac:{config}", "-e", "Pendulum-v1", "--seeds", "0",
+        "--eval-freq", "1000", "--eval-episodes", "1", "--save-freq", "1000", "-w", "1", "--no-progress",
+        "--output", str(output),
+    ]  # fmt: skip
+    run_dir = output / "runs" / "Pendulum-v1" / "sac" / "seed_0"
+    first = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 300
+    while not (run_dir / "checkpoints" / "latest").is_file() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    pid = _worker_pid(run_dir)
+    assert pid is not None, "the run ended before its first checkpoint"
+    os.kill(pid, signal.SIGKILL)
+    output_text, _ = first.communicate(timeout=300)
+    assert first.returncode == 1, output_text[-3000:]  # the run failed: its worker was killed
+    saved = int((run_dir / "checkpoints" / "latest").read_text().split("_")[0])
+    assert 1000 <= saved < 4000
+    second = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert second.returncode == 0, second.stderr[-3000:]
+    log = (run_dir / "train.log").read_text()
+    assert f"Continuing the run from its checkpoint at {saved} steps" in log
+    evaluations = pd.read_csv(run_dir / "evaluations.csv")
+    assert evaluations["timesteps"].tolist() == [0, 1000, 2000, 3000, 4000]  # as an uninterrupted run's
+    assert json.loads((run_dir / "run.json").read_text())["status"] == "finished"
+    assert not (run_dir / "checkpoints").exists()  # a finished run keeps no checkpoint

@@ -9,6 +9,7 @@ A checkpoint is a folder ``<run>/checkpoints/<N>_steps/`` holding
   counts of the goal schedulers, counters, their generators: :meth:`~sb3_gcrl.wrappers.mode.TrainingModeMixin.
   run_state`);
 * ``rng_state.pkl``: the global generators of Python, numpy and torch;
+* ``extra.json``: what the caller adds (optional: a comparison's run settings and evaluations so far);
 * ``checkpoint.json``: the step count and the size of every other file, written last.
 
 The layout is RL-Zoo's for ``-i``: a model file with ``replay_buffer.pkl`` and ``<env name>/vecnormalize.pkl``
@@ -32,6 +33,7 @@ import os
 import pickle
 import random
 import shutil
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +43,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_gcrl.common.saving import atomic_write_text
+from sb3_gcrl.common.validation import check_int
 
 #: folder of a run's checkpoints
 CHECKPOINTS_DIR = "checkpoints"
@@ -52,6 +55,8 @@ MODEL_FILE = "model.zip"
 REPLAY_BUFFER_FILE = "replay_buffer.pkl"
 ENV_STATE_FILE = "env_state.pkl"
 RNG_STATE_FILE = "rng_state.pkl"
+#: what the caller saved with the checkpoint (JSON; ``sb3-gcrl compare``: the run's settings and evaluations)
+EXTRA_FILE = "extra.json"
 #: written last: its presence marks a complete checkpoint
 MANIFEST_FILE = "checkpoint.json"
 
@@ -60,12 +65,15 @@ class CheckpointError(ValueError):
     """A run folder without a usable checkpoint."""
 
 
-def save_checkpoint(model: BaseAlgorithm, run_dir: str | Path, env_name: str) -> Path:
+def save_checkpoint(
+    model: BaseAlgorithm, run_dir: str | Path, env_name: str, extra: Mapping[str, Any] | None = None
+) -> Path:
     """Save a resumable checkpoint of ``model``'s run (see the module's docstring for what it holds).
 
     :param model: the algorithm being trained (its ``env`` is the training env).
     :param run_dir: the run's folder.
     :param env_name: the env's name as RL-Zoo writes it in folder names (``GCRL-PointUMazeGoal-v0``).
+    :param extra: what else to save with it (JSON-serialisable; :func:`checkpoint_extra` reads it back).
     :return: the checkpoint's folder.
     """
     root = Path(run_dir) / CHECKPOINTS_DIR
@@ -85,6 +93,8 @@ def save_checkpoint(model: BaseAlgorithm, run_dir: str | Path, env_name: str) ->
     (partial / ENV_STATE_FILE).write_bytes(pickle.dumps(env_states))
     rng = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": th.get_rng_state()}
     (partial / RNG_STATE_FILE).write_bytes(pickle.dumps(rng))
+    if extra is not None:
+        (partial / EXTRA_FILE).write_text(json.dumps(extra))
     sizes = {path.relative_to(partial).as_posix(): path.stat().st_size for path in partial.rglob("*") if path.is_file()}
     (partial / MANIFEST_FILE).write_text(json.dumps({"num_timesteps": int(model.num_timesteps), "sizes": sizes}))
     target = root / name
@@ -120,6 +130,15 @@ def latest_checkpoint(run_dir: str | Path) -> Path:
 def checkpoint_steps(checkpoint: str | Path) -> int:
     """The env steps a checkpoint was taken at."""
     return int(json.loads((Path(checkpoint) / MANIFEST_FILE).read_text())["num_timesteps"])
+
+
+def checkpoint_extra(checkpoint: str | Path) -> dict[str, Any] | None:
+    """What :func:`save_checkpoint` was given as ``extra``, or None when it was given nothing.
+
+    :param checkpoint: the checkpoint's folder.
+    """
+    path = Path(checkpoint) / EXTRA_FILE
+    return json.loads(path.read_text()) if path.is_file() else None
 
 
 def check_checkpoint(checkpoint: str | Path, algo_class: type) -> None:
@@ -204,20 +223,28 @@ class RunCheckpointCallback(BaseCallback):
     :param save_freq: calls (vectorised env steps) between checkpoints.
     :param run_dir: the run's folder.
     :param env_name: the env's name as RL-Zoo writes it in folder names.
+    :param extra: called at each checkpoint for what to save with it (:func:`save_checkpoint`'s ``extra``).
     :param verbose: 1 prints each checkpoint's folder.
     """
 
-    def __init__(self, save_freq: int, run_dir: str | Path, env_name: str, verbose: int = 0) -> None:
+    def __init__(
+        self,
+        save_freq: int,
+        run_dir: str | Path,
+        env_name: str,
+        extra: Callable[[], Mapping[str, Any]] | None = None,
+        verbose: int = 0,
+    ) -> None:
         super().__init__(verbose)
-        if save_freq < 1:
-            raise ValueError(f"save_freq must be >= 1, got {save_freq}")
-        self.save_freq = int(save_freq)
+        self.save_freq = check_int("save_freq", save_freq)
         self.run_dir = Path(run_dir)
         self.env_name = env_name
+        self.extra = extra
 
     def _on_step(self) -> bool:
         if self.n_calls % self.save_freq == 0:
-            path = save_checkpoint(self.model, self.run_dir, self.env_name)
+            extra = None if self.extra is None else self.extra()
+            path = save_checkpoint(self.model, self.run_dir, self.env_name, extra)
             if self.verbose:
                 print(f"Saved a resumable checkpoint to {path}")
         return True

@@ -74,6 +74,11 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--save-models", action="store_true", help="save each trained model in its run folder")
+    parser.add_argument(
+        "--save-freq", type=int, default=0, metavar="N",
+        help="save a resumable checkpoint of each run every N env steps: a run killed after one continues from it "
+        "when the command is run again (default 0: none, a killed run starts from zero)",
+    )  # fmt: skip
     parser.add_argument("--final-window", type=int, default=1, help="evaluations averaged into the final score")
     parser.add_argument("--solve-threshold", type=float, help="level counted as solved (default 0.9 success)")
     parser.add_argument(
@@ -177,6 +182,7 @@ def main(argv: list[str] | None = None) -> int:
             title=pick(args.title, "description"),
             command=command,
             report_only=args.report_only,
+            save_freq=args.save_freq,
         )
     except KeyboardInterrupt:
         print(

@@ -74,8 +74,21 @@ class EvaluationRecorder(BaseCallback):
         self._start_time = 0.0
         self._success_buffer: list[float] = []
 
+    def resume(self, records: list[dict[str, float]]) -> None:
+        """Continue a run from a checkpoint: ``records`` are its evaluations up to the checkpoint, and the schedule
+        goes on after the checkpoint's step (no evaluation at the start; ``wall_time_s`` goes on from the last).
+
+        :param records: the evaluation rows the run had when the checkpoint was saved (the evaluation at the
+            checkpoint's step included, if one was due).
+        """
+        self.records = [dict(record) for record in records]
+
     def _on_training_start(self) -> None:
         self._start_time = time.perf_counter()
+        if self.records:  # resumed (:meth:`resume`)
+            self._start_time -= self.records[-1]["wall_time_s"]
+            self._next_eval = (self.num_timesteps // self.eval_freq + 1) * self.eval_freq
+            return
         self._next_eval = 0
         self._evaluate(scheduled=0)
         self._next_eval = self.eval_freq

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import json
 import math
 import time
 import traceback
@@ -45,6 +46,8 @@ class RunSpec:
     :param env_kwargs: keyword arguments of the env constructor, training and evaluation (``--env-kwargs``).
     :param gym_packages: modules imported before building envs (they register extra envs).
     :param save_model: also save the trained model (``zoo/`` folder of the run).
+    :param save_freq: env steps between resumable checkpoints (0: none); a run killed after one continues from it
+        when the comparison is run again (:func:`execute_run`).
     """
 
     method: str
@@ -60,6 +63,7 @@ class RunSpec:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     gym_packages: tuple[str, ...] = ()
     save_model: bool = False
+    save_freq: int = 0
 
     @property
     def env_slug(self) -> str:
@@ -215,6 +219,44 @@ def _zoo_args(spec: RunSpec, log_folder: Path) -> argparse.Namespace:
     )
 
 
+def _settings(spec: dict[str, Any]) -> dict[str, Any]:
+    """A run's settings as a checkpoint of it must match them: the spec in its JSON form, without ``save_freq``."""
+    return {key: value for key, value in json.loads(json.dumps(spec)).items() if key != "save_freq"}
+
+
+def resumable_checkpoint(run_dir: Path, spec: RunSpec) -> tuple[Path, dict[str, Any]] | None:
+    """The checkpoint an unfinished run continues from: the newest one in ``run_dir``, whole
+    (:func:`~sb3_gcrl.common.checkpoints.check_checkpoint`), made with the settings of ``spec``.
+
+    :param run_dir: the run's folder.
+    :param spec: the run as planned now.
+    :return: the checkpoint and what the run saved with it (its settings and evaluations), or None (a note says
+        why a checkpoint that is there is not used).
+    """
+    from sb3_gcrl.common.checkpoints import (
+        CHECKPOINTS_DIR,
+        CheckpointError,
+        check_checkpoint,
+        checkpoint_extra,
+        latest_checkpoint,
+    )
+    from sb3_gcrl.zoo_config import algorithm_class
+
+    if not (run_dir / CHECKPOINTS_DIR).is_dir():
+        return None
+    try:
+        checkpoint = latest_checkpoint(run_dir)
+        check_checkpoint(checkpoint, algorithm_class(spec.algo))
+        extra = checkpoint_extra(checkpoint)
+    except (CheckpointError, ValueError) as error:
+        print(f"The run starts from zero: its checkpoint cannot be used ({error})")
+        return None
+    if extra is None or _settings(extra.get("spec", {})) != _settings(spec.to_dict()):
+        print(f"The run starts from zero: its checkpoint {checkpoint} was made with other settings")
+        return None
+    return checkpoint, extra
+
+
 def execute_run(
     spec: RunSpec,
     run_dir: Path,
@@ -222,6 +264,12 @@ def execute_run(
     report_progress: Callable[[int], None] | None = None,
 ) -> RunResult:
     """Train and evaluate one run; never raises for a failure of the run itself (it is returned as failed).
+
+    With ``spec.save_freq``, a resumable checkpoint (:mod:`sb3_gcrl.common.checkpoints`, with the run's settings and
+    evaluations so far) is saved in ``run_dir/checkpoints`` every ``save_freq`` env steps, after the evaluation due
+    at that step; a run that finds such a checkpoint of its own settings (:func:`resumable_checkpoint`) continues
+    from it, with the step counter, the replay buffer, the wrappers' state, the generators and the evaluations of the
+    checkpoint (``sb3-gcrl train --resume``'s mechanism), and ends with the evaluations of an uninterrupted run.
 
     :param spec: the run.
     :param run_dir: folder for RL-Zoo's own outputs (``zoo/``: config.yml, monitor.csv, model).
@@ -236,10 +284,21 @@ def execute_run(
             prepare_process(spec.gym_packages)
             from rl_zoo3.exp_manager import ExperimentManager
 
+            from sb3_gcrl.common.checkpoints import MODEL_FILE, RunCheckpointCallback, checkpoint_steps
             from sb3_gcrl.compare.evaluation import EvaluationRecorder
+            from sb3_gcrl.zoo_train import ResumableExperimentManager
 
             log_folder = run_dir / "zoo"
-            exp_manager = ExperimentManager(
+            resumed = resumable_checkpoint(run_dir, spec)
+            manager: dict[str, Any] = {}
+            if resumed is not None or spec.save_freq:
+                manager = {"manager": ResumableExperimentManager, "save_arguments": False}
+            if resumed is not None:
+                print(f"Continuing the run from its checkpoint at {checkpoint_steps(resumed[0])} steps")
+                manager["trained_agent"] = str(resumed[0] / MODEL_FILE)
+                manager["resume_from"] = log_folder / spec.algo / f"{spec.env_slug}_1"
+            manager_class = manager.pop("manager", ExperimentManager)
+            exp_manager = manager_class(
                 _zoo_args(spec, log_folder),
                 spec.algo,
                 spec.env_id,
@@ -253,6 +312,7 @@ def execute_run(
                 log_interval=-1,  # rl_zoo3 train's default (0 would mean "log every 0 episodes")
                 config=spec.config,
                 device="cpu",
+                **manager,
             )
             setup = exp_manager.setup_experiment()
             assert setup is not None  # None only in hyperparameter-optimisation mode
@@ -268,7 +328,18 @@ def execute_run(
                 progress_every=max(1, spec.n_timesteps // 100),
                 verbose=1,
             )
+            if resumed is not None:
+                recorder.resume(resumed[1]["evaluations"])
             exp_manager.callbacks.append(recorder)
+            if spec.save_freq:  # after the recorder: a checkpoint holds the evaluation due at its step
+                exp_manager.callbacks.append(
+                    RunCheckpointCallback(
+                        max(1, spec.save_freq // exp_manager.n_envs),
+                        run_dir,
+                        spec.env_slug,
+                        extra=lambda: {"spec": spec.to_dict(), "evaluations": recorder.records},
+                    )
+                )
             exp_manager.learn(model)
             if model.num_timesteps < spec.n_timesteps:
                 # RL-Zoo's learn() swallows KeyboardInterrupt: never report a cut run as finished

@@ -140,6 +140,7 @@ def plan_runs(
     save_models: bool = False,
     env_kwargs: dict[str, Any] | None = None,
     config_folder: Path | None = None,
+    save_freq: int = 0,
 ) -> list[RunSpec]:
     """Every run (env-major, then method, then seed), with its config resolved; raises before anything runs.
 
@@ -177,6 +178,7 @@ def plan_runs(
                     env_kwargs=dict(env_kwargs or {}),
                     gym_packages=tuple(gym_packages),
                     save_model=save_models,
+                    save_freq=save_freq,
                 )
                 for seed in seeds
             )
@@ -279,6 +281,7 @@ def compare(
     title: str | None = None,
     command: str | None = None,
     report_only: bool = False,
+    save_freq: int = 0,
 ) -> ComparisonResult:
     """Run methods x envs x seeds (skipping runs finished earlier in ``output``) and write the analysis.
 
@@ -311,6 +314,8 @@ def compare(
     :param report_only: train nothing: write the analysis of the runs already finished in ``output`` (the others
         are listed as missing). It takes no lock, so it also works while another compare trains into ``output``
         (a snapshot; that compare rewrites the analysis when it ends), and it leaves ``comparison.json`` alone.
+    :param save_freq: env steps between resumable checkpoints of each run (0: none): a run killed after one (a lost
+        machine, a killed worker) continues from it when the comparison is run again, instead of from zero.
     :return: the result, with the summary tables.
     """
     start = time.perf_counter()
@@ -321,6 +326,7 @@ def compare(
     check_optional_int("n_timesteps", n_timesteps)
     check_optional_int("eval_freq", eval_freq)
     check_int("n_eval_episodes", n_eval_episodes)
+    check_int("save_freq", save_freq, minimum=0)
     if metric not in ("auto", "success_rate", "mean_return"):
         raise ValueError(f"metric must be 'auto', 'success_rate' or 'mean_return', got {metric!r}")
     config_dir = Path(config_dir)
@@ -337,7 +343,7 @@ def compare(
     check_writable_folder("the output folder (--output)", output)
     specs = plan_runs(
         parsed, envs, seeds, n_timesteps, eval_freq, n_eval_episodes, hyperparams or {}, gym_packages, config_dir,
-        save_models, env_kwargs, output / "configs",
+        save_models, env_kwargs, output / "configs", save_freq,
     )  # fmt: skip
 
     def analyse(

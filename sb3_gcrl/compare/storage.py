@@ -15,6 +15,9 @@
         train.log                stdout/stderr of the run
         visited_goals.npy        achieved goals of the training data (off-policy agents of goal envs)
         zoo/                     RL-Zoo's own outputs (config.yml, args.yml, monitor.csv, model if saved)
+        checkpoints/             the newest resumable checkpoint (``--save-freq``), with the run's settings and
+                                 evaluations so far; kept when an unfinished run is started again, which continues
+                                 from it; removed when the run finishes
       curves.csv scores.csv summary.csv curves.png report.md (+ memory_*.png, visitation_*.png,
       all_goals_curves.csv all_goals_scores.csv all_goals_summary.csv all_goals.png all_goals_entropy.png)
 """
@@ -94,6 +97,10 @@ def write_run_result(run_dir: Path, result: RunResult) -> None:
         "spec": result.spec.to_dict(),
     }
     atomic_write_text(run_dir / RUN_FILE, json.dumps(record, indent=2) + "\n")
+    if result.status == "finished":  # its resumable checkpoint is no longer needed
+        from sb3_gcrl.common.checkpoints import CHECKPOINTS_DIR
+
+        shutil.rmtree(run_dir / CHECKPOINTS_DIR, ignore_errors=True)
 
 
 def load_run_record(run_dir: Path) -> tuple[dict[str, Any] | None, str | None]:
@@ -211,9 +218,11 @@ def is_finished(run_dir: Path, spec: RunSpec, notes: list[str] | None = None) ->
     # the config is compared by the digest of the run's section, not its path (an output folder may move with its
     # repository); fields that a run.json of an older version lacks count as their defaults
     defaults = RunSpec.defaults()
-    stored = {key: value for key, value in {**defaults, **record.get("spec", {})}.items() if key != "config"}
+    # (nor how often it saved checkpoints, which a finished run no longer needs)
+    ignored = ("config", "save_freq")
+    stored = {key: value for key, value in {**defaults, **record.get("spec", {})}.items() if key not in ignored}
     # compared in their JSON form: a tuple in hyperparams/env_kwargs comes back from run.json as a list
-    wanted = {key: value for key, value in json.loads(json.dumps(spec.to_dict())).items() if key != "config"}
+    wanted = {key: value for key, value in json.loads(json.dumps(spec.to_dict())).items() if key not in ignored}
     if stored != wanted:
         changed = sorted(key for key in set(stored) | set(wanted) if stored.get(key) != wanted.get(key))
         details = ", ".join(f"{key}: {stored.get(key)!r} -> {wanted.get(key)!r}" for key in changed)
@@ -328,7 +337,16 @@ def _in_use_message(path: Path, holder: int | None) -> str:
 
 
 def reset_run_dir(run_dir: Path) -> None:
-    """Remove what an unfinished (or overwritten) run left behind, then recreate the empty folder."""
-    if run_dir.exists():
-        shutil.rmtree(run_dir)
-    run_dir.mkdir(parents=True)
+    """Remove what an unfinished (or overwritten) run left behind, then recreate the empty folder; its resumable
+    checkpoint (:data:`~sb3_gcrl.common.checkpoints.CHECKPOINTS_DIR`) stays, and the run continues from it when it was
+    made with the same settings (:func:`~sb3_gcrl.compare.run.execute_run`)."""
+    from sb3_gcrl.common.checkpoints import CHECKPOINTS_DIR
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for path in run_dir.iterdir():
+        if path.name == CHECKPOINTS_DIR:
+            continue
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
