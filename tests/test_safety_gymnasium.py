@@ -28,6 +28,8 @@ needs_safety_gymnasium = pytest.mark.skipif(
 
 #: steps compared per layout; the actions are random, each held for HOLD steps (turns, runs, stops and reversals)
 STEPS, HOLD = 400, 10
+#: safety-gymnasium's layout (and our action sequence) seed
+LAYOUT_SEED = 0
 #: positions (m), orientation matrices, velocities (m/s, rad/s) and sensors agree to this (absolute); measured:
 #: Point 0 (bit for bit), Car 4e-13 (its start quaternion is rebuilt from the yaw)
 ATOL = 1e-9
@@ -43,7 +45,8 @@ def _body_velocity(model: mujoco.MjModel, data: mujoco.MjData, body: int) -> np.
 
 @needs_safety_gymnasium
 @pytest.mark.parametrize("robot", ["point", "car"])
-def test_our_robot_moves_as_safety_gymnasiums(robot: str, seed: int = 0) -> None:
+def test_our_robot_moves_as_safety_gymnasiums(robot: str) -> None:
+    seed = LAYOUT_SEED
     real = make_builder(robot.title(), f"Safety{robot.title()}Goal0-v0", {"observation_flatten": False})
     ours = SafetyGoalEnv(robot=robot, lidar_num_bins=16, terminate_at_goal=False)  # Safety-Gym's 16 bins
     real_obs, _ = real.reset(seed=seed)
@@ -97,6 +100,26 @@ def test_the_points_turning_actuator_is_a_velocity_servo() -> None:
     np.testing.assert_allclose(turn.gainprm[:1], [1.0])
     np.testing.assert_allclose(turn.biasprm[:3], [0.0, 0.0, -1.0])  # kv = 1: force u - gear * omega
     np.testing.assert_allclose(turn.forcerange, [-0.05, 0.05])
+
+
+def test_the_points_turn_rate_chatters_below_saturation() -> None:
+    """Euler integration of the servo's velocity feedback: the rate alternates around the commanded one, the heading
+    holds (docs/envs.md)."""
+    env = SafetyGoalEnv(robot="point")
+    env.reset(seed=0, options={"heading": 0.0})
+    for _ in range(4):
+        env.step(np.array([0.0, 0.5], dtype=np.float32))  # turning
+    env.data.ctrl[:] = 0.0
+    mujoco.mj_step(env.model, env.data, nstep=200)
+    yaw = env.robot_yaw
+    rates = []
+    for _ in range(20):
+        mujoco.mj_step(env.model, env.data)
+        rates.append(env.data.qvel[2])
+    assert all(a * b < 0 for a, b in zip(rates, rates[1:]))  # the sign flips on every physics step
+    np.testing.assert_allclose(np.abs(rates), 0.48, atol=0.01)
+    mujoco.mj_step(env.model, env.data, nstep=1000)
+    assert abs(env.robot_yaw - yaw) < 1e-3
 
 
 @needs_safety_gymnasium
