@@ -7,8 +7,10 @@ imported through ``--gym-packages`` comes too late: the zoo fixes ``--algo`` cho
 parser. ``train`` finds the hyperparameters as ``sb3-gcrl compare`` does (:func:`~sb3_gcrl.zoo_config.resolve_config`):
 the ``-conf`` file (a path or a shipped config's name, ``sb3-gcrl list-configs``), else the shipped
 ``zoo_configs/<algo>.yml``, then ``<algo>_thesis.yml``, then RL-Zoo's own ``hyperparams/<algo>.yml``; ``--variant NAME``
-picks the section ``<env id>@NAME`` instead of the env's own. A section (with the ``-params`` overrides) whose keys
-the algorithm does not take is refused before training, with close matches.
+picks the section ``<env id>@NAME`` instead of the env's own. Before RL-Zoo starts, ``train`` runs the checks of
+``sb3-gcrl compare`` (the same functions, :mod:`sb3_gcrl.zoo_config`): algorithm and env names (with close
+matches), the section's keys with the ``-params`` overrides (with close matches), a budget of at least one step, the
+model of ``-i``, and a writable log folder.
 """
 
 from __future__ import annotations

@@ -290,14 +290,14 @@ def execute_run(
 
             log_folder = run_dir / "zoo"
             resumed = resumable_checkpoint(run_dir, spec)
-            manager: dict[str, Any] = {}
-            if resumed is not None or spec.save_freq:
-                manager = {"manager": ResumableExperimentManager, "save_arguments": False}
+            manager_class: type[ExperimentManager] = ExperimentManager
+            resuming: dict[str, Any] = {}
+            if resumed is not None or spec.save_freq:  # sb3-gcrl train's manager: it resumes from a checkpoint
+                manager_class, resuming = ResumableExperimentManager, {"save_arguments": False}
             if resumed is not None:
                 print(f"Continuing the run from its checkpoint at {checkpoint_steps(resumed[0])} steps")
-                manager["trained_agent"] = str(resumed[0] / MODEL_FILE)
-                manager["resume_from"] = log_folder / spec.algo / f"{spec.env_slug}_1"
-            manager_class = manager.pop("manager", ExperimentManager)
+                resuming["trained_agent"] = str(resumed[0] / MODEL_FILE)  # RL-Zoo's -i: model, replay buffer
+                resuming["resume_from"] = log_folder / spec.algo / f"{spec.env_slug}_1"  # the folder RL-Zoo picks
             exp_manager = manager_class(
                 _zoo_args(spec, log_folder),
                 spec.algo,
@@ -312,7 +312,7 @@ def execute_run(
                 log_interval=-1,  # rl_zoo3 train's default (0 would mean "log every 0 episodes")
                 config=spec.config,
                 device="cpu",
-                **manager,
+                **resuming,
             )
             setup = exp_manager.setup_experiment()
             assert setup is not None  # None only in hyperparameter-optimisation mode
