@@ -86,7 +86,9 @@ def main() -> None:
     parser.add_argument("--set", nargs="*", default=[], help="MoReFree arguments, e.g. distance_warmup=0")
     parser.add_argument("--load", help="probe this saved model instead of training")
     parser.add_argument("--load-buffer", help="its replay buffer (MoReFree.save_replay_buffer)")
-    parser.add_argument("--save", help="save the trained model (and its replay buffer beside it)")
+    parser.add_argument(
+        "--save", help="save the trained model (and its replay buffer beside it) at every probe, as SAVE_<steps>.zip"
+    )
     parser.add_argument("--num-threads", type=int, default=1)
     args = parser.parse_args()
     th.set_num_threads(args.num_threads)
@@ -116,9 +118,10 @@ def main() -> None:
         model.learn(args.every, callback=callback, reset_num_timesteps=False)
         if model._n_updates > 0:
             print(row(model, env, rollout_envs, wall, cpu), flush=True)
-    if args.save is not None:
-        model.save(args.save)
-        model.save_replay_buffer(str(Path(args.save).with_suffix("")) + "_buffer.pkl")
+        if args.save is not None:
+            stem = f"{Path(args.save).with_suffix('')}_{model.num_timesteps}"
+            model.save(stem + ".zip")
+            model.save_replay_buffer(stem + "_buffer.pkl")
 
 
 if __name__ == "__main__":

@@ -838,6 +838,95 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
     assert critic_calibration(model, 64) == 0.0
 
 
+def test_goal_holding_compares_pi_g_with_staying_at_the_goal_by_hand(monkeypatch: pytest.MonkeyPatch):
+    """Known pieces on GrowingTree: the latent's first unit is the height, each imagined step adds 0.1 x the action,
+    D is the true distance and V_G = -10 x it; replayed heights -1, -0.99, ..., 1; the evaluation goal 0.5."""
+    from sb3_gcrl.morefree.diagnostics import HOLD_FIGURES, goal_holding
+
+    env = make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0)
+    model = tiny(env)
+    base = env.envs[0].unwrapped
+    heights = np.round(np.linspace(-1.0, 1.0, 201), 2)
+    for i, h in enumerate(heights):
+        model.replay_buffer.add(0, np.array([h, h], dtype=np.float32), None if i == 0 else np.zeros(1, np.float32))
+    policy = model.policy
+    deter_dim, stoch_dim = policy.net_kwargs["deter"], policy.net_kwargs["stoch"]
+
+    def latent_at(height: th.Tensor) -> LatentState:
+        deter = th.zeros(len(height), deter_dim)
+        deter[:, 0] = height
+        zeros = th.zeros(len(height), stoch_dim)
+        return LatentState(deter, zeros, zeros, zeros + 1.0)
+
+    def img_step(latent: LatentState, action: th.Tensor, mode: bool = False) -> LatentState:
+        return latent_at(latent.deter[:, 0] + 0.1 * action[:, 0])
+
+    exact = lambda a, g: (symexp(a) - symexp(g)).abs().sum(-1)  # noqa: E731  (D reads symlog goals)
+    monkeypatch.setattr(model, "_task_goal_samples", lambda kind, n: np.full((n, 1), 0.5, dtype=np.float32))
+    monkeypatch.setattr(policy, "hold_latent", lambda states, deterministic=False: latent_at(states[:, -1]))
+    monkeypatch.setattr(policy.world_model.rssm, "img_step", img_step)
+    monkeypatch.setattr(policy.world_model, "decode_goal", lambda feat: symlog(feat[..., :1]))
+    monkeypatch.setattr(policy.distance, "forward", exact)
+    critic = lambda feat, goal: -10 * (feat[..., 0] - symexp(goal)[..., 0]).abs()  # noqa: E731
+    monkeypatch.setattr(policy.critic_g, "forward", critic)
+    monkeypatch.setattr(policy.critic_g_target, "forward", critic)
+    model.gamma, model.lambda_ = 0.9, 1.0  # lambda = 1: the lambda-return is the rewards plus the bootstrap
+
+    def by_hand(push: float) -> dict[str, float]:
+        rng = np.random.default_rng(4)
+        gaps, stays, ends, at, beside = [], [], [], [], []
+        objective: dict[str, list[np.ndarray]] = {"objective": [], "reward": [], "bootstrap": []}
+        discounts = 0.9 ** np.arange(6)
+        for _ in range(2):
+            states = model.replay_buffer.sample_states(300, rng)[:, -1].astype(np.float64)
+            truth = np.abs(states - 0.5)
+            starts = states[np.argsort(truth, kind="stable")[:3]]
+            path = starts[None] + 0.1 * push * np.arange(1, 7)[:, None]  # (steps, starts)
+            returns = discounts @ -np.abs(path - 0.5)
+            gaps.append((returns - discounts.sum() * -np.abs(starts - 0.5)) / discounts.sum())
+            # the training objective over imagination_horizon steps: pi_G against the zero action (which stays here)
+            h = model.imagination_horizon
+            short = starts[None] + 0.1 * push * np.arange(1, h + 1)[:, None]
+            reward_gap = 0.9 ** np.arange(h) @ (np.abs(starts - 0.5)[None] - np.abs(short - 0.5))
+            bootstrap_gap = 0.9**h * -10 * (np.abs(short[-1] - 0.5) - np.abs(starts - 0.5))
+            objective["reward"].append(reward_gap)
+            objective["bootstrap"].append(bootstrap_gap)
+            objective["objective"].append(reward_gap + bootstrap_gap)
+            stays.append((np.abs(path - 0.5) <= 0.25).ravel())
+            ends.append(np.abs(path[-1] - 0.5))
+            at.append(truth[truth <= 0.125])
+            beside.append(truth[(truth >= 0.25) & (truth <= 0.5)])
+        flat = lambda parts: float(np.concatenate(parts).mean())  # noqa: E731
+        return {
+            "hold_objective_gap": flat(objective["objective"]),
+            "hold_reward_gap": flat(objective["reward"]),
+            "hold_bootstrap_gap": flat(objective["bootstrap"]),
+            "hold_return_gap": flat(gaps),
+            "hold_stay_share": flat(stays),
+            "hold_leave_distance": flat(ends),
+            "distance_at_goal": flat(at),
+            "distance_beside_goal": flat(beside),
+            "value_at_goal": -10 * flat(at),
+            "value_beside_goal": -10 * flat(beside),
+        }
+
+    for push in (0.0, 1.0, -0.45):
+        monkeypatch.setattr(
+            policy.actor_g,
+            "act",
+            lambda feat, goal, deterministic=False, push=push: (th.full((len(feat), 1), push), None),
+        )
+        figures = goal_holding(model, base, 0.25, n_goals=2, n_states=300, starts_per_goal=3, horizon=6, seed=4)
+        assert list(figures) == list(HOLD_FIGURES)
+        expected = by_hand(push)
+        for name in HOLD_FIGURES:
+            assert figures[name] == pytest.approx(expected[name], abs=1e-5), (push, name)
+    # a pi_G that stays loses nothing against staying; one that drives off loses, and leaves the goal zone
+    assert by_hand(0.0)["hold_return_gap"] == pytest.approx(0.0, abs=1e-7) and by_hand(0.0)["hold_stay_share"] == 1.0
+    assert by_hand(1.0)["hold_return_gap"] < -0.1 and by_hand(1.0)["hold_stay_share"] < 0.5
+    assert by_hand(1.0)["hold_objective_gap"] < 0 and by_hand(0.0)["hold_objective_gap"] == 0.0
+
+
 def growing_tree_episodes(goals: tuple[float, ...], steps: int = 12) -> list[gym.Env]:
     return [gym.make("GCRL/GrowingTreeGoal-v0", goal=g, terminate_at_goal=True, max_episode_steps=steps) for g in goals]
 
