@@ -593,6 +593,35 @@ def test_reset_free_training_with_peg_goals_and_the_agents_explore_phase():
     assert lengths == [40, 40]
 
 
+def test_go_phases_run_their_full_length_after_the_goal_is_reached():
+    """Algorithm 1: pi_G acts for all H_G steps of a Go phase, also once the commanded goal is reached; the wrapper's
+    early end at the env's success is the ablation ``end_go_on_success=True``."""
+
+    def go_steps_after_success(env: GoExploreWrapper) -> tuple[int, int]:
+        env.set_training_mode(True)
+        obs, _ = env.reset(seed=0)
+        goal = obs["desired_goal"][0]
+        reached, go_after = None, 0
+        for t in range(env.go_steps):
+            if env.acting_policy != "goal":
+                break
+            height = obs["achieved_goal"][0]
+            obs, _, _, _, info = env.step(np.clip([(goal - height) / 0.1], -1, 1))
+            if reached is None and info["is_success"]:
+                reached = t
+            elif reached is not None:
+                go_after += 1
+        assert reached is not None, "the goal was not reached"
+        return reached, go_after
+
+    make = lambda **kw: morefree_go_explore(  # noqa: E731
+        ResetFreeWrapper(gym.make("GCRL/GrowingTreeGoal-v0"), eval_horizon=60), alpha=1.0, **kw
+    )
+    reached, go_after = go_steps_after_success(make())
+    assert reached < 15 and reached + 1 + go_after == 30  # H_G = 30 steps of pi_G, however early it arrives
+    assert go_steps_after_success(make(end_go_on_success=True))[1] == 0
+
+
 def test_goal_requests_are_answered_through_the_wrapper_and_an_open_one_stops_the_step():
     env = reset_free_env(eval_horizon=20)(gym.make("GCRL/GrowingTreeGoal-v0"))
     env.set_training_mode(True)

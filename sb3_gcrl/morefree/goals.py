@@ -81,13 +81,16 @@ def morefree_go_explore(
     exploratory: str = "peg",
     explorer: str = "agent",
     scheduler_kwargs: dict[str, Any] | None = None,
+    end_go_on_success: bool = False,
     **go_explore_kwargs: Any,
 ) -> GoExploreWrapper:
     """Back-and-Forth Go-Explore (Algorithm 3) for the model-based agent: an ``env_wrapper`` entry.
 
     Builds the package's :class:`~sb3_gcrl.wrappers.GoExploreWrapper` with the ``back_and_forth`` scheduler and
     swaps in the agent's parts: PEG goals as rho_E (:class:`PEGScheduler`, falling back to count-based novelty) and
-    pi_E as the Explore-phase policy (``explore_policy="agent"``). ``alpha = 0`` is reset-free PEG.
+    pi_E as the Explore-phase policy (``explore_policy="agent"``). ``alpha = 0`` is reset-free PEG. Each Go phase
+    runs its full H_G steps (Algorithm 1), so pi_G also acts where it has arrived: the replay holds pi_G holding its
+    goals, which its critic otherwise never sees (docs/morefree.md, "Departures").
 
     :param env: goal env, wrapped in :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` (which states ``eval_horizon``).
     :param alpha: probability of a forward/back pair (thesis Sec. 3.7.3: 0.2).
@@ -95,6 +98,8 @@ def morefree_go_explore(
     :param explorer: ``"agent"`` (pi_E, Plan2Explore) or ``"random"`` (uniform actions in the Explore phase).
     :param scheduler_kwargs: keyword arguments of the novelty scheduler (``goal_low``, ``goal_high``, ``n_bins``,
         ``tau``, ``within_bin``), the fallback of PEG.
+    :param end_go_on_success: end a Go phase when the env reports the commanded goal reached, instead of after
+        H_G steps (Algorithm 1); the wrapper's default for the model-free agents, an ablation here.
     :param go_explore_kwargs: other keyword arguments of :class:`~sb3_gcrl.wrappers.GoExploreWrapper`.
     :return: the wrapped env.
     """
@@ -106,7 +111,14 @@ def morefree_go_explore(
         if key in go_explore_kwargs:
             raise ValueError(f"morefree_go_explore sets {key} itself: remove it")
     kwargs = {**(scheduler_kwargs or {}), "alpha": alpha, "exploratory": "novelty"}
-    wrapped = GoExploreWrapper(env, "back_and_forth", kwargs, explore_policy=explorer, **go_explore_kwargs)
+    wrapped = GoExploreWrapper(
+        env,
+        "back_and_forth",
+        kwargs,
+        explore_policy=explorer,
+        end_go_on_success=end_go_on_success,
+        **go_explore_kwargs,
+    )
     scheduler = wrapped.scheduler
     assert isinstance(scheduler, BackAndForthScheduler)
     if exploratory == "peg":
