@@ -515,7 +515,7 @@ def goal_holding(
             nearest = finite[np.argsort(truth[finite], kind="stable")[:starts_per_goal]]
             latent = policy.hold_latent(th.as_tensor(states[nearest], device=device), deterministic=True)
             goal_rows = target.expand(len(nearest), -1)
-            for name, gap in zip(objective, _objective_gaps(model, latent, goal_rows), strict=True):
+            for name, gap in zip(objective, objective_gaps(model, latent, goal_rows), strict=True):
                 objective[name].append(gap)
             start_reward = -policy.distance(policy.world_model.decode_goal(latent.feat), goal_rows)
             rewards = []
@@ -565,10 +565,16 @@ def goal_holding(
     )
 
 
-def _objective_gaps(model: MoReFree, start: LatentState, goals: th.Tensor) -> tuple[np.ndarray, ...]:
-    """pi_G's deterministic actions against the zero action from the same starts, over ``imagination_horizon``
-    imagined steps (prior's mode): differences of the lambda-return, of the discounted rewards and of the
-    discounted bootstrap value at the end."""
+def objective_gaps(model: MoReFree, start: LatentState, goals: th.Tensor) -> tuple[np.ndarray, ...]:
+    """pi_G's deterministic actions against the zero action (do nothing) from the same starts, over
+    ``imagination_horizon`` imagined steps (the prior's mode), as pi_G's training objective scores them.
+
+    :param model: the agent.
+    :param start: latent starts ``(N, ...)``.
+    :param goals: symlog goals ``(N, G)``.
+    :return: per start, pi_G's minus the zero action's lambda-return (bootstrapped from the slow critic), discounted
+        reward sum and discounted bootstrap value at the end.
+    """
     policy, horizon = model.policy, model.imagination_horizon
     discounts = model.gamma ** th.arange(horizon, dtype=th.float32, device=model.device)
     results = []
