@@ -39,3 +39,15 @@ def load_algorithm(name: str) -> type[BaseAlgorithm]:
         raise KeyError(f"Unknown sb3-gcrl algorithm {name!r}; choose one of {sorted(ALGORITHMS)}")
     module_name, class_name = ALGORITHMS[name].split(":")
     return getattr(importlib.import_module(module_name), class_name)
+
+
+def register_zoo_algorithms() -> None:
+    """Insert every algorithm of :data:`ALGORITHMS` into ``rl_zoo3.utils.ALGOS``, and their optuna samplers into
+    RL-Zoo's sampler table (``-optimize``)."""
+    from rl_zoo3.utils import ALGOS
+
+    from sb3_gcrl.hyperparams_opt import register_zoo_samplers
+
+    for name in ALGORITHMS:
+        ALGOS.setdefault(name, load_algorithm(name))
+    register_zoo_samplers()

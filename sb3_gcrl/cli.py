@@ -25,6 +25,8 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from sb3_gcrl.algorithms import register_zoo_algorithms
+from sb3_gcrl.common.command_line import option_value
 from sb3_gcrl.zoo_config import ZOO_CONFIGS_DIR, shipped_config
 
 if TYPE_CHECKING:
@@ -58,30 +60,6 @@ commands:
 """
 
 
-def register_zoo_algorithms() -> None:
-    """Insert every algorithm of :data:`sb3_gcrl.algorithms.ALGORITHMS` into ``rl_zoo3.utils.ALGOS``, and their
-    optuna samplers into RL-Zoo's sampler table (``-optimize``)."""
-    from rl_zoo3.utils import ALGOS
-
-    from sb3_gcrl.algorithms import ALGORITHMS, load_algorithm
-    from sb3_gcrl.hyperparams_opt import register_zoo_samplers
-
-    for name in ALGORITHMS:
-        ALGOS.setdefault(name, load_algorithm(name))
-    register_zoo_samplers()
-
-
-def _option_value(argv: Sequence[str], *flags: str) -> str | None:
-    """Value of the first of ``flags`` in ``argv`` (``--flag value`` or ``--flag=value``), else None."""
-    for i, arg in enumerate(argv):
-        for flag in flags:
-            if arg == flag and i + 1 < len(argv):
-                return argv[i + 1]
-            if arg.startswith(flag + "="):
-                return arg.split("=", 1)[1]
-    return None
-
-
 def _take_option(argv: Sequence[str], *flags: str) -> tuple[list[str], str | None]:
     """``argv`` without the first of ``flags`` and its value (``--flag value`` or ``--flag=value``), and the value."""
     for i, arg in enumerate(argv):
@@ -109,8 +87,8 @@ def resolve_train_config(argv: Sequence[str]) -> tuple[list[str], ResolvedConfig
 
     rest, variant = _take_option(argv, "--variant")
     rest, config = _take_option(rest, "-conf", "--conf-file")
-    algo = _option_value(rest, "--algo") or "ppo"  # RL-Zoo's defaults
-    env_id = _option_value(rest, "--env") or "CartPole-v1"
+    algo = option_value(rest, "--algo") or "ppo"  # RL-Zoo's defaults
+    env_id = option_value(rest, "--env") or "CartPole-v1"
     try:
         resolved = resolve_config(algo, env_id, variant, config)
     except ConfigNotFoundError as error:
@@ -202,7 +180,7 @@ def _train_options_in_help() -> Iterator[None]:
 
 def _with_default_num_threads(argv: list[str]) -> list[str]:
     """``argv`` with ``--num-threads 1`` (:data:`DEFAULT_NUM_THREADS`) added when it sets no thread count."""
-    if _option_value(argv, "--num-threads") is not None:
+    if option_value(argv, "--num-threads") is not None:
         return argv
     return [*argv, "--num-threads", str(DEFAULT_NUM_THREADS)]
 
@@ -284,8 +262,8 @@ def _check_names(argv: Sequence[str]) -> None:
 
     prepare_process(tuple(_option_values(argv, "--gym-packages")), single_thread=False)
     try:
-        check_algorithm(_option_value(argv, "--algo") or "ppo")  # RL-Zoo's defaults
-        check_env_id(_option_value(argv, "--env") or "CartPole-v1")
+        check_algorithm(option_value(argv, "--algo") or "ppo")  # RL-Zoo's defaults
+        check_env_id(option_value(argv, "--env") or "CartPole-v1")
     except ValueError as error:
         raise SystemExit(f"sb3-gcrl train: {error}") from None
 
@@ -306,21 +284,21 @@ def _check_config(argv: list[str], resolved: ResolvedConfig) -> None:
     from sb3_gcrl.zoo_config import algorithm_class, check_hyperparameters, check_mode_switching_callbacks, run_budget
 
     overrides, flag = _overrides(argv)
-    algo = _option_value(argv, "--algo")
+    algo = option_value(argv, "--algo")
     section = {**resolved.hyperparams, **overrides}
     try:
         if algo in ALGORITHMS or algo in ALGOS:
             check_hyperparameters(algo, section, resolved.where, list(overrides), override_flag=flag)
         if not {"callback", "env_wrapper"} & set(overrides):  # else RL-Zoo's merged values are not known here
             check_mode_switching_callbacks(resolved.hyperparams, resolved.where)
-        n_timesteps = _option_value(argv, "-n", "--n-timesteps")
+        n_timesteps = option_value(argv, "-n", "--n-timesteps")
         if n_timesteps is None or n_timesteps.lstrip("-").isdigit():  # else RL-Zoo's parser names the mistake
             where = f"{flag} n_timesteps" if "n_timesteps" in overrides else resolved.where
             run_budget(section, where, None if n_timesteps is None else int(n_timesteps))
-        trained_agent = _option_value(argv, "-i", "--trained-agent")
+        trained_agent = option_value(argv, "-i", "--trained-agent")
         if algo is not None and trained_agent and Path(trained_agent).is_file():  # else RL-Zoo names the mistake
             check_model_file(trained_agent, algorithm_class(algo))
-        check_writable_folder("the log folder (-f)", _option_value(argv, "-f", "--log-folder") or "logs")
+        check_writable_folder("the log folder (-f)", option_value(argv, "-f", "--log-folder") or "logs")
     except ValueError as error:
         raise SystemExit(f"sb3-gcrl train: {error}") from None
 
@@ -384,7 +362,7 @@ def enjoy(argv: list[str]) -> int:
 
     asks_for_help = "-h" in argv or "--help" in argv
     if "--no-render" not in argv and not asks_for_help and display_missing():
-        env_id = _option_value(argv, "--env") or "CartPole-v1"  # RL-Zoo's default env
+        env_id = option_value(argv, "--env") or "CartPole-v1"  # RL-Zoo's default env
         if renders_to_a_window(env_id, _option_values(argv, "--gym-packages")):
             print(
                 f"sb3-gcrl enjoy: no display (DISPLAY and WAYLAND_DISPLAY unset), so {env_id} runs without rendering "

@@ -328,8 +328,8 @@ def resume_arguments(run_dir: Path) -> tuple[list[str], Path]:
     :return: ``(arguments, checkpoint)``: the run's own arguments with ``-i <checkpoint>/model.zip``.
     :raises SystemExit: the folder is not a run of ``sb3-gcrl train`` or has no checkpoint.
     """
-    from sb3_gcrl.cli import _option_value
     from sb3_gcrl.common.checkpoints import CheckpointError, check_checkpoint
+    from sb3_gcrl.common.command_line import option_value
     from sb3_gcrl.zoo_config import algorithm_class
 
     saved = sorted(run_dir.glob(f"*/{ARGUMENTS_FILE}"))
@@ -344,7 +344,7 @@ def resume_arguments(run_dir: Path) -> tuple[list[str], Path]:
     except CheckpointError as error:
         raise SystemExit(f"sb3-gcrl train --resume: {error}") from None
     try:
-        check_checkpoint(checkpoint, algorithm_class(_option_value(arguments, "--algo") or "ppo"))
+        check_checkpoint(checkpoint, algorithm_class(option_value(arguments, "--algo") or "ppo"))
     except CheckpointError as error:
         models = sorted(str(path) for path in run_dir.glob("*.zip"))
         start_from = f" one of the run's saved models ({', '.join(models)}) or" if models else ""

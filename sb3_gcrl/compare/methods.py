@@ -60,7 +60,7 @@ class Method:
     """A method as the user named it, before it meets an environment.
 
     :param label: name used in tables, plots and run folders.
-    :param algo: key of ``rl_zoo3.utils.ALGOS`` once :func:`sb3_gcrl.cli.register_zoo_algorithms` ran.
+    :param algo: key of ``rl_zoo3.utils.ALGOS`` once :func:`sb3_gcrl.algorithms.register_zoo_algorithms` ran.
     :param config: explicit hyperparameter file, or None to search for one per environment.
     :param variant: the variant (sections ``<env id>@<variant>``), or None for the env's default section.
     """

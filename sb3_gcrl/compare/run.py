@@ -196,7 +196,7 @@ def prepare_process(gym_packages: tuple[str, ...] = (), single_thread: bool = Tr
 
         torch.set_num_threads(1)
     import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
-    from sb3_gcrl.cli import register_zoo_algorithms
+    from sb3_gcrl.algorithms import register_zoo_algorithms
 
     register_zoo_algorithms()
     for module in gym_packages:
