@@ -25,14 +25,13 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sb3_gcrl.algorithms import register_zoo_algorithms
 from sb3_gcrl.common.command_line import option_value
 from sb3_gcrl.zoo_config import ZOO_CONFIGS_DIR, shipped_config
 
 if TYPE_CHECKING:
     from sb3_gcrl.zoo_config import ResolvedConfig
 
-__all__ = ["ZOO_CONFIGS_DIR", "main", "register_zoo_algorithms", "shipped_config"]
+__all__ = ["ZOO_CONFIGS_DIR", "main", "shipped_config"]
 
 #: sub-command -> ``"module:function"`` taking ``argv`` (list of strings) and returning an exit code
 COMMANDS: dict[str, str] = {
@@ -117,6 +116,7 @@ def list_configs(argv: list[str]) -> int:
 
 def _run_zoo_script(script: Callable[[], None], prog: str, argv: list[str]) -> int:
     import sb3_gcrl  # noqa: F401  (registers the environments)
+    from sb3_gcrl.algorithms import register_zoo_algorithms
 
     register_zoo_algorithms()
     saved_argv = sys.argv

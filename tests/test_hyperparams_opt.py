@@ -9,8 +9,8 @@ import pytest
 from rl_zoo3.hyperparams_opt import HYPERPARAMS_SAMPLER
 from test_contracts import CASES
 
-from sb3_gcrl.algorithms import ALGORITHMS
-from sb3_gcrl.cli import main, register_zoo_algorithms
+from sb3_gcrl.algorithms import ALGORITHMS, register_zoo_algorithms
+from sb3_gcrl.cli import main
 from sb3_gcrl.hyperparams_opt import SAMPLERS
 
 
