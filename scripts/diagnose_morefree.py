@@ -92,6 +92,8 @@ def main() -> None:
     parser.add_argument("--num-threads", type=int, default=1)
     args = parser.parse_args()
     th.set_num_threads(args.num_threads)
+    if args.save is not None:
+        Path(args.save).parent.mkdir(parents=True, exist_ok=True)
 
     env_id, hyperparams = args.env, resolve_config("morefree", args.env, args.variant, args.config).hyperparams
     vec_env = make_vec_env(env_id, n_envs=1, seed=args.seed, wrapper_class=get_wrapper_class(hyperparams))
