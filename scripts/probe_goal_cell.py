@@ -16,8 +16,8 @@ and the task's evaluation goal (the cell's centre), prints for a model saved by 
 
 ::
 
-    python scripts/diagnose_morefree.py --steps 30000 --every 10000 --save ckpt/mf_s0   # about 35 min on one core
-    python scripts/probe_goal_cell.py ckpt/mf_s0_30000.zip                             # about 1 min
+    python scripts/diagnose_morefree.py --steps 30000 --every 10000 --save ckpt/mf_s0   # about 25 CPU-minutes
+    python scripts/probe_goal_cell.py ckpt/mf_s0_30000.zip                             # about 15 s
     python scripts/probe_goal_cell.py ckpt/mf_s0_30000.zip --refit 1500 --refit-size 400 4
 """
 
