@@ -92,9 +92,10 @@ def refit_critic(model: MoReFree, hidden: int, layers: int, updates: int, states
         with th.no_grad():
             batch = model.replay_buffer.sample(model.batch_size, model.batch_length, model._rng)
             _, post, _ = policy.world_model.loss(*(th.as_tensor(x) for x in batch))
-            start = post.flatten()
-            start = start.rows(th.as_tensor(model._rng.choice(start.deter.shape[0], starts, replace=False)))
-            imagined_goals = symlog(th.as_tensor(model.sample_imagination_goals(starts)[0]))
+            achieved = batch[0].reshape(-1, batch[0].shape[-1])[:, -policy.goal_dim :]
+            rows = model._rng.choice(achieved.shape[0], starts, replace=False)
+            start = post.flatten().rows(th.as_tensor(rows))
+            imagined_goals = symlog(th.as_tensor(model.sample_imagination_goals(starts, achieved, achieved[rows])[0]))
             feats = model._imagine(start, imagined_goals)[0][:, :starts]
             rewards = model._goal_rewards(policy.world_model.decode_goal(feats), imagined_goals)
             returns = model._returns(feats, rewards, target, imagined_goals)

@@ -372,6 +372,62 @@ def test_imagination_goal_proportions_match_alpha():
     assert counts.min() > 0
 
 
+def test_replayed_imagination_goals_come_from_the_batch_or_the_buffer():
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), imagination_alpha=0.0)
+    model.learn(30)
+    stored = model.replay_buffer.states[0, : model.replay_buffer.pos[0], -1]
+    batch = np.array([[100.0], [200.0], [300.0]], dtype=np.float32)  # not in the buffer
+    goals, kinds = model.sample_imagination_goals(600, batch)
+    assert (kinds == 2).all() and set(goals[:, 0]) == {100.0, 200.0, 300.0}  # PEG: the batch's goals, each drawn
+    model.replay_goals = "buffer"
+    goals, _ = model.sample_imagination_goals(600, batch)
+    assert np.isin(goals[:, 0], stored).all()
+    with pytest.raises(ValueError, match="replay_goals"):
+        tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), replay_goals="future")
+
+
+def test_own_goal_fraction_replaces_that_share_of_the_replayed_goals_by_the_starts_own():
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), imagination_alpha=0.2)
+    model.own_goal_fraction = 0.25
+    model.learn(30)
+    n = 20_000
+    batch = np.full((8, 1), 100.0, dtype=np.float32)
+    own = np.arange(n, dtype=np.float32)[:, None] + 1000.0
+    goals, kinds = model.sample_imagination_goals(n, batch, own)
+    for kind, p in ((2, 0.8 * 0.75), (3, 0.8 * 0.25)):
+        share = np.mean(kinds == kind)
+        assert abs(share - p) < 4 * np.sqrt(p * (1 - p) / n), (kind, share)
+    np.testing.assert_array_equal(goals[kinds == 3], own[kinds == 3])  # each start's own goal, in its row
+    assert (goals[kinds == 2] == 100.0).all()
+    with pytest.raises(ValueError, match="own_goals"):
+        model.sample_imagination_goals(10, batch)
+    with pytest.raises(ValueError, match="own_goal_fraction"):
+        tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), own_goal_fraction=1.5)
+
+
+def test_training_gives_each_start_the_achieved_goal_of_its_own_replayed_state():
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), own_goal_fraction=1.0)
+    sampled, calls = [], []
+    sample, draw = model.replay_buffer.sample, model.sample_imagination_goals
+
+    def record_batch(*args, **kwargs):
+        sampled.append(sample(*args, **kwargs))
+        return sampled[-1]
+
+    def record_goals(n, batch_goals=None, own_goals=None):
+        calls.append((batch_goals, own_goals))
+        return draw(n, batch_goals, own_goals)
+
+    model.replay_buffer.sample, model.sample_imagination_goals = record_batch, record_goals
+    model.learn(model.learning_starts + 4)
+    assert calls
+    states = sampled[-1][0]  # (L, B, state_dim), time-major like the flat starts
+    batch_goals, own_goals = calls[-1]
+    np.testing.assert_array_equal(batch_goals, states.reshape(-1, states.shape[-1])[:, -1:])
+    assert len(own_goals) == (model.imagination_starts or len(batch_goals))
+    assert np.isin(own_goals[:, 0], batch_goals[:, 0]).all()
+
+
 def test_alpha_is_read_from_the_env_scheduler():
     def make(env: gym.Env) -> gym.Env:
         return morefree_go_explore(ResetFreeWrapper(env, eval_horizon=20), alpha=0.0)

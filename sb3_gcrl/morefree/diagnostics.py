@@ -218,8 +218,10 @@ def critic_calibration(model: MoReFree, n_starts: int = 512, seed: int = 0) -> f
     """
     rng = np.random.default_rng(seed)
     policy = model.policy
-    latent, _ = _replay_latents(model, max(1, n_starts // model.batch_length), rng)
-    goals = symlog(th.as_tensor(model.sample_imagination_goals(latent.deter.shape[0])[0], device=model.device))
+    latent, achieved = _replay_latents(model, max(1, n_starts // model.batch_length), rng)
+    achieved_np = achieved.cpu().numpy()
+    goals_np = model.sample_imagination_goals(latent.deter.shape[0], achieved_np, achieved_np)[0]
+    goals = symlog(th.as_tensor(goals_np, device=model.device))
     with th.no_grad():
         feats, _, _ = model._imagine(latent, goals)
         feats_g = feats[:, : goals.shape[0]]

@@ -47,6 +47,7 @@ from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
 from sb3_gcrl.common.seeding import SeededGeneratorMixin
 from sb3_gcrl.common.validation import (
     check_bool,
+    check_choice,
     check_float,
     check_int,
     check_optional_int,
@@ -89,6 +90,13 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
     :param imagination_alpha: share alpha of task-relevant imagination goals (alpha/2 rho_0, alpha/2 rho_g*);
         ``None`` reads alpha from the env's Back-and-Forth scheduler (stated once, there), or 0.2 (thesis) when the
         env has none. Set it to 0 for "MF w/o Imag." and to 0.2 with an ``alpha=0`` env for "MF w/o BF-GE".
+    :param replay_goals: where the 1 - alpha replayed imagination goals come from: ``"batch"``, the achieved goals
+        of the training batch's states in random order (PEG's ``training_goals: batch``, so about one goal in
+        ``batch_size`` lies on the start's own replayed sequence), or ``"buffer"``, states drawn uniformly from the
+        whole replay buffer.
+    :param own_goal_fraction: share of the replayed imagination goals replaced by the start's own achieved goal
+        ("stay here" goals). Not in the thesis or PEG: the ``own_goal`` variant of the presets (0 is the thesis's
+        agent; docs/morefree.md, "Goal holding").
     :param entropy_coef: actor entropy bonus (PEG's point maze: 1e-4; DreamerV2: 2e-3).
     :param target_update_interval: training steps between copies into the slow critics (PEG: 100).
     :param expl_reward_scale: scale of the disagreement reward of pi_E (PEG: 1).
@@ -148,6 +156,8 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
         gamma: float = 0.99,
         lambda_: float = 0.95,
         imagination_alpha: float | None = None,
+        replay_goals: str = "batch",
+        own_goal_fraction: float = 0.0,
         entropy_coef: float = 1e-4,
         target_update_interval: int = 100,
         expl_reward_scale: float = 1.0,
@@ -206,6 +216,8 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
         self.imagination_alpha = (
             None if imagination_alpha is None else check_unit_interval("imagination_alpha", imagination_alpha)
         )
+        self.replay_goals = check_choice("replay_goals", replay_goals, ("batch", "buffer"))
+        self.own_goal_fraction = check_unit_interval("own_goal_fraction", own_goal_fraction)
         self.entropy_coef = check_float("entropy_coef", entropy_coef, minimum=0.0)
         self.target_update_interval = check_int("target_update_interval", target_update_interval)
         self.expl_reward_scale = check_float("expl_reward_scale", expl_reward_scale, minimum=0.0)
@@ -345,15 +357,25 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
             return np.asarray(self.env.env_method("sample_task_goals", kind, n, indices=[0])[0], dtype=np.float32)
         return self._task_goals.sample(kind, self._rng, n).astype(np.float32)  # type: ignore[arg-type]
 
-    def sample_imagination_goals(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+    def sample_imagination_goals(
+        self, n: int, batch_goals: np.ndarray | None = None, own_goals: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Goals of the imagined pi_G rollouts (thesis Sec. 3.4.2, Algorithm 2 line 14).
 
         :param n: number of goals.
+        :param batch_goals: achieved goals of the training batch ``(m, goal_dim)``, the replayed goals' pool with
+            ``replay_goals="batch"`` (``None``: drawn from the whole buffer).
+        :param own_goals: each start's own achieved goal ``(n, goal_dim)``, for ``own_goal_fraction``.
         :return: goals ``(n, goal_dim)`` and their kinds ``(n,)``: 0 rho_0 (w.p. alpha/2), 1 rho_g* (alpha/2),
-            2 replayed states (1 - alpha, uniform over the buffer, not HER's future states).
+            2 replayed states (1 - alpha; not HER's future states), 3 the start's own achieved goal (a share
+            ``own_goal_fraction`` of the replayed ones).
         """
         alpha = self._alpha
         kinds = self._rng.choice(3, size=n, p=[alpha / 2, alpha / 2, 1 - alpha])
+        if self.own_goal_fraction > 0.0:
+            if own_goals is None:
+                raise ValueError("own_goal_fraction > 0 needs each start's own achieved goal (own_goals)")
+            kinds[(kinds == 2) & (self._rng.random(n) < self.own_goal_fraction)] = 3
         goal_dim = self.policy.goal_dim
         goals = np.empty((n, goal_dim), dtype=np.float32)
         for kind, name in ((0, "initial"), (1, "evaluation")):
@@ -362,7 +384,14 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
                 goals[mask] = self._task_goal_samples(name, int(mask.sum())).reshape(-1, goal_dim)
         mask = kinds == 2
         if mask.any():
-            goals[mask] = self.replay_buffer.sample_states(int(mask.sum()), self._rng)[:, -goal_dim:]
+            if self.replay_goals == "batch" and batch_goals is not None:
+                pool = batch_goals.reshape(-1, goal_dim)
+                goals[mask] = pool[self._rng.choice(len(pool), int(mask.sum()), replace=int(mask.sum()) > len(pool))]
+            else:
+                goals[mask] = self.replay_buffer.sample_states(int(mask.sum()), self._rng)[:, -goal_dim:]
+        mask = kinds == 3
+        if mask.any():
+            goals[mask] = np.asarray(own_goals).reshape(n, goal_dim)[mask]
         return goals, kinds
 
     def _goal_box(self) -> tuple[np.ndarray, np.ndarray]:
@@ -763,12 +792,16 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
 
         start = post.flatten()
         groups = th.arange(self.batch_size, device=self.device).repeat(self.batch_length)
+        # the batch's achieved goals, in the order of the flat starts (time-major)
+        batch_goals = states_np.reshape(-1, states_np.shape[-1])[:, -self.policy.goal_dim :]
+        own_goals = batch_goals
         n_starts = start.deter.shape[0]
         if self.imagination_starts is not None and self.imagination_starts < n_starts:
-            rows = th.as_tensor(self._rng.choice(n_starts, self.imagination_starts, replace=False), device=self.device)
-            start, groups = start.rows(rows), groups[rows]
+            rows_np = self._rng.choice(n_starts, self.imagination_starts, replace=False)
+            rows = th.as_tensor(rows_np, device=self.device)
+            start, groups, own_goals = start.rows(rows), groups[rows], own_goals[rows_np]
             n_starts = self.imagination_starts
-        goals_np, _ = self.sample_imagination_goals(n_starts)
+        goals_np, _ = self.sample_imagination_goals(n_starts, batch_goals, own_goals)
         goals = symlog(th.as_tensor(goals_np, device=self.device))
         replay_pairs = self._replay_pairs() if self.distance_on_replay else None
         frozen_models = frozen(policy.world_model, policy.distance, policy.ensemble)
