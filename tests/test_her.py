@@ -208,3 +208,62 @@ def test_alpha_is_read_from_the_scheduler_and_a_second_different_alpha_is_refuse
     assert task_relevant_sac(env, 0.3).replay_buffer.task_goal_ratio == 0.3  # the same value twice is fine
     with pytest.raises(ValueError, match="alpha given twice with different values"):
         task_relevant_sac(env, 0.2)
+
+
+def reset_free_her_sac(learning_starts: int, n_envs: int = 1, **wrapper_kwargs: int) -> SAC:
+    """SAC + SB3's HerReplayBuffer on a reset-free line env whose segments end at the hard reset (or segment_length)."""
+    env = make_vec_env(
+        LineGoalEnv, n_envs=n_envs, seed=0, wrapper_class=ResetFreeWrapper, wrapper_kwargs=wrapper_kwargs
+    )
+    return SAC(
+        "MultiInputPolicy",
+        env,
+        replay_buffer_class=HerReplayBuffer,
+        learning_starts=learning_starts,
+        batch_size=16,
+        policy_kwargs={"net_arch": [8]},
+        seed=0,
+    )
+
+
+def test_first_update_before_the_first_segment_ends_fails_in_sb3() -> None:
+    """Negative control: switched to reset-free mode without the callback, SB3's HER fails at its first update."""
+    model = reset_free_her_sac(learning_starts=50, hard_reset_every=500)
+    enable(model)
+    with pytest.raises(RuntimeError, match="Unable to sample before the end of the first episode"):
+        model.learn(200)
+    assert model.num_timesteps == 51
+
+
+def test_first_update_before_the_first_segment_ends_is_refused_before_training() -> None:
+    from sb3_gcrl.callbacks import ResetFreeCallback
+
+    model = reset_free_her_sac(learning_starts=50, hard_reset_every=500)
+    match = r"after 51 steps per env \(learning_starts=50\).*lasts up to 500 steps.*learning_starts to at least 499"
+    with pytest.raises(ValueError, match=match):
+        model.learn(200, callback=ResetFreeCallback())
+    assert model.num_timesteps == 0  # refused before the first step
+    assert model.get_env().get_attr("longest_segment") == [500]
+
+    # n envs share learning_starts: 2 envs x 29 steps end no 30-step segment, 2 x 30 do
+    model = reset_free_her_sac(learning_starts=57, n_envs=2, segment_length=30)
+    with pytest.raises(ValueError, match=r"29 steps per env \(learning_starts=57 \(2 envs\)\).*at least 58"):
+        model.learn(100, callback=ResetFreeCallback())
+    model = reset_free_her_sac(learning_starts=58, n_envs=2, segment_length=30)
+    model.learn(100, callback=ResetFreeCallback())
+    assert model.num_timesteps == 100
+
+    # a budget that ends before the first update samples nothing: not refused (SB3's warm-up warning is the matter)
+    model = reset_free_her_sac(learning_starts=50, hard_reset_every=500)
+    model.learn(40, callback=ResetFreeCallback())
+    assert model.num_timesteps == 40
+
+
+def test_longest_segment_of_the_wrapper_chain() -> None:
+    assert ResetFreeWrapper(LineGoalEnv(), hard_reset_every=500).longest_segment == 500
+    assert ResetFreeWrapper(LineGoalEnv(), hard_reset_every=500, segment_length=40).longest_segment == 40
+    go_explore = GoExploreWrapper(
+        ResetFreeWrapper(LineGoalEnv(), hard_reset_every=500), "env_default", go_steps=6, explore_steps=4
+    )
+    assert go_explore.longest_segment == 10
+    assert GoalCommandWrapper(ResetFreeWrapper(LineGoalEnv(), segment_length=7)).longest_segment == 7

@@ -23,6 +23,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from sb3_gcrl.callbacks.segments import GoalSuccessLog
 from sb3_gcrl.common.validation import check_int
 from sb3_gcrl.her.executed_action import check_stores_executed_actions
+from sb3_gcrl.her.first_update import check_her_first_update
 from sb3_gcrl.wrappers.mode import switch_training_envs
 
 
@@ -49,6 +50,7 @@ class ResetFreeCallback(BaseCallback):
         )
         if env.has_attr("replaces_actions") and any(env.get_attr("replaces_actions")):
             check_stores_executed_actions(self.model, "ResetFreeCallback", "GoExploreWrapper's Explore phase")
+        check_her_first_update(self.model, env, self.model._total_timesteps, "ResetFreeCallback")
         if self.verbose > 0:
             print(f"ResetFreeCallback: reset-free mode on for {env.num_envs} training env(s)")
 

@@ -1,4 +1,5 @@
-"""HER replay buffers: executed-action storage and task-relevant relabeling (thesis Section 3.4.2)."""
+"""HER replay buffers: executed-action storage and task-relevant relabeling (thesis Section 3.4.2), and the check that
+the first update comes after the first reset-free segment."""
 
 from sb3_gcrl.common.validation import check_n_sampled_goal
 from sb3_gcrl.her.executed_action import (
@@ -8,6 +9,7 @@ from sb3_gcrl.her.executed_action import (
     ExecutedActionReplayBuffer,
     check_stores_executed_actions,
 )
+from sb3_gcrl.her.first_update import check_her_first_update
 from sb3_gcrl.her.task_relevant import TaskRelevantHerReplayBuffer
 
 __all__ = [
@@ -16,6 +18,7 @@ __all__ = [
     "ExecutedActionMixin",
     "ExecutedActionReplayBuffer",
     "TaskRelevantHerReplayBuffer",
+    "check_her_first_update",
     "check_n_sampled_goal",
     "check_stores_executed_actions",
 ]

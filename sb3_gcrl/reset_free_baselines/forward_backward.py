@@ -168,6 +168,9 @@ class ForwardBackwardSAC(ModelFileMixin, ClassNamedRunsMixin, FiniteRewardsMixin
     #: one-column (``n_envs=1``) buffers that take each env's row separately, so that envs in different phases can
     #: share a step; otherwise SB3's buffers with one column per env (needed by HER), and all envs share a phase
     _single_column_buffers: ClassVar[bool] = False
+    #: ``train`` updates a learner only once its buffer can be sampled (:func:`has_samples`: a HER buffer needs a
+    #: finished segment), so :func:`~sb3_gcrl.her.check_her_first_update` lets any ``learning_starts`` through
+    waits_for_finished_episodes: ClassVar[bool] = True
     backward: SAC
     backward_buffer: ReplayBuffer
 

@@ -303,6 +303,10 @@ class GoExploreWrapper(GoalCommandWrapper):
         self._obs = self._command(self._obs)
         return self._obs
 
+    def _segment_bound(self) -> int:
+        """One Go-Explore per segment: at most ``go_steps`` Go steps, then ``explore_steps`` Explore steps."""
+        return self.go_steps + self.explore_steps
+
     def _random_action(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
         # uniform actions drawn in blocks from the wrapper's seeded generator (Box.sample costs ~20 us per call)
         space = self.action_space

@@ -112,6 +112,19 @@ class TrainingModeMixin:
     def _on_training_mode(self, training: bool) -> None:  # noqa: B027 (optional hook)
         """Apply a mode switch (no-op by default)."""
 
+    @property
+    def longest_segment(self) -> int | None:
+        """The most steps a training-mode segment (what SB3 sees as an episode) lasts from its reset: the tightest
+        bound of this wrapper and the mode-switched wrappers below it, None when none of them bounds it. A segment
+        ends earlier at a terminal state, or where a wrapper ends it at success.
+        """
+        bounds = [bound for wrapper in self._mode_chain() if (bound := wrapper._segment_bound()) is not None]
+        return min(bounds) if bounds else None
+
+    def _segment_bound(self) -> int | None:
+        """This wrapper's own bound on the training-mode segments (None: it does not cut them)."""
+        return None
+
     # --- run state (checkpoints, resume) --------------------------------------------------------------------------
     def _mode_chain(self) -> list[TrainingModeMixin]:
         """This wrapper and the mode-switched wrappers below it, outermost first."""

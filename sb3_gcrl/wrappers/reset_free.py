@@ -120,6 +120,10 @@ class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstruct
             else:
                 limit._max_episode_steps = own if self.eval_horizon is None else self.eval_horizon
 
+    def _segment_bound(self) -> int:
+        """A segment ends at the next hard reset, or after ``segment_length`` steps."""
+        return min(self.hard_reset_every, self.segment_length or self.hard_reset_every)
+
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         if not self.training or self._needs_physical_reset or seed is not None or options:
             obs, info = self.env.reset(seed=seed, options=options)
