@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -1169,6 +1170,37 @@ def test_mixed_precision_trains_the_agent_in_bfloat16_with_float32_distributions
     after = th.nn.utils.parameters_to_vector(model.policy.parameters()).detach()
     assert model._n_updates > 10 and th.isfinite(after).all() and not th.equal(before, after)
     assert all(p.dtype == th.float32 for p in model.policy.parameters())
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_mixed_precision_uses_bfloat16_only_where_the_cpu_computes_it(monkeypatch: pytest.MonkeyPatch, native: bool):
+    import sb3_gcrl.common.hardware as hardware
+
+    monkeypatch.setattr(
+        hardware,
+        "cpu_features",
+        lambda: {**dict.fromkeys(hardware.CPU_FEATURES, False), "avx2": True, "avx512_bf16": native},
+    )
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), mixed_precision=True)
+    dtypes = []
+    original = model._autocast
+
+    def recorded(world_model: bool = False):
+        context = original(world_model)
+        dtypes.append(th.get_autocast_dtype("cpu") if isinstance(context, th.autocast) else th.float32)
+        return context
+
+    model._autocast = recorded
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model.learn(model.learning_starts + 6)
+    fallbacks = [w for w in caught if "no native bfloat16" in str(w.message)]
+    if native:  # AVX512-BF16: the imagination in bfloat16 (the world model's filtering stays float32 on a CPU)
+        assert th.bfloat16 in dtypes and not fallbacks
+    else:  # AVX2 only: float32 throughout, said once
+        assert set(dtypes) == {th.float32} and len(fallbacks) == 1
+        assert "AVX512-BF16" in str(fallbacks[0].message) and "mixed_precision=False" in str(fallbacks[0].message)
+    assert "_bfloat16" not in model.get_parameters() and "_bfloat16" in model._excluded_save_params()
 
 
 def test_learn_runs_on_n_threads_and_restores_torchs_setting():

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
 from typing import Any, ClassVar, TypeVar
@@ -42,6 +43,7 @@ from stable_baselines3.common.utils import safe_mean
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 from torch.profiler import record_function
 
+from sb3_gcrl.common.hardware import describe_cpu, native_bfloat16
 from sb3_gcrl.common.runs import warn_if_learning_never_starts
 from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
 from sb3_gcrl.common.seeding import SeededGeneratorMixin
@@ -120,7 +122,9 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
         first training step; minutes on a CPU, then about 2x faster there). Random numbers come from PyTorch's
         generator, as in the plain step, which the compiled step reproduces on fixed seeds.
     :param mixed_precision: bfloat16 matrix products (PEG's ``precision: 16``); distributions and losses in float32,
-        and on a CPU the world model's filtering too (bfloat16 is slower there at its small products).
+        and on a CPU the world model's filtering too (bfloat16 is slower there at its small products). Only where
+        the device computes bfloat16 natively (a CPU with AVX512-BF16 or AMX, a CUDA GPU that supports it):
+        elsewhere bfloat16 is emulated and slower than float32, so the agent trains in float32 and warns once.
     :param n_threads: torch intra-op threads while learning (``None``: leave torch's setting, e.g. RL-Zoo's
         ``--num-threads``).
     :param policy_kwargs: keyword arguments of :class:`~sb3_gcrl.morefree.policies.MoReFreePolicy` (network sizes,
@@ -259,6 +263,7 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
         self._reads_acting_policy = False
         self._go_steps: int | None = None
         self._compiled: dict[str, Callable[..., Any]] | None = None
+        self._bfloat16: bool | None = None  # mixed_precision on this device: decided on the first training step
         self._alpha = DEFAULT_ALPHA if self.imagination_alpha is None else float(self.imagination_alpha)
 
     def _excluded_save_params(self) -> list[str]:
@@ -271,6 +276,7 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
             "_task_goals",
             "_planned_envs",
             "_compiled",
+            "_bfloat16",
         ]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
@@ -754,9 +760,23 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
             a CPU: its products are small (one per sequence step), and bfloat16's casts cost more there than they
             save (``scripts/bench_morefree.py --profile``).
         """
-        if not self.mixed_precision or (world_model and self.device.type == "cpu"):
+        if not self._uses_bfloat16() or (world_model and self.device.type == "cpu"):
             return nullcontext()
         return th.autocast(self.device.type, dtype=th.bfloat16)
+
+    def _uses_bfloat16(self) -> bool:
+        """``mixed_precision`` where the device computes bfloat16 natively; decided once per process (and per load),
+        with one warning where ``mixed_precision`` asks for bfloat16 on a device that would emulate it."""
+        if getattr(self, "_bfloat16", None) is None:
+            self._bfloat16 = self.mixed_precision and native_bfloat16(self.device)
+            if self.mixed_precision and not self._bfloat16:
+                where = describe_cpu() if self.device.type == "cpu" else str(self.device)
+                warnings.warn(
+                    f"MoReFree: mixed_precision=True, but {where} has no native bfloat16 (a CPU needs AVX512-BF16 or "
+                    "AMX): training in float32, which is faster there; set mixed_precision=False to silence this",
+                    stacklevel=2,
+                )
+        return bool(self._bfloat16)
 
     def _loss_functions(self) -> dict[str, Callable[..., Any]]:
         """The three loss computations of a training step, compiled with ``torch.compile`` when
