@@ -1221,3 +1221,28 @@ def test_learn_runs_on_n_threads_and_restores_torchs_setting():
         assert set(seen) == {2}
     finally:
         th.set_num_threads(previous)
+
+
+@pytest.mark.parametrize("verbose", [0, 1])
+def test_compiling_the_train_step_is_announced_once(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], verbose: int
+):
+    """The first compiled training step waits minutes on a CPU: one line (SB3's verbose >= 1) says so beforehand."""
+    compiled: list[str] = []
+
+    def fake_compile(function: Any, **kwargs: Any) -> Any:  # compiling itself takes minutes: not tested here
+        compiled.append(function.__name__)
+        return function
+
+    monkeypatch.setattr(th, "compile", fake_compile)
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), compile_train_step=True, verbose=verbose)
+    model.learn(model.learning_starts + 6)
+    model.learn(6, reset_num_timesteps=False)
+    assert model._n_updates >= 2 and sorted(compiled) == ["_imagination_losses", "_learner_losses", "_model_losses"]
+    lines = [line for line in capsys.readouterr().out.splitlines() if "torch.compile" in line]
+    if verbose:
+        assert len(lines) == 1
+        assert "once per model in this process" in lines[0] and "minutes on a CPU" in lines[0]
+        assert "compile_train_step=False skips it" in lines[0]
+    else:
+        assert lines == []

@@ -785,6 +785,13 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
         if not self.compile_train_step:
             return {name: getattr(self, name) for name in names}
         if self._compiled is None:
+            if self.verbose >= 1:
+                print(
+                    "MoReFree: compiling the training step with torch.compile (compile_train_step=True). The first "
+                    "training step waits for it, once per model in this process: minutes on a CPU (about 2-3 for the "
+                    "CPU presets, up to 20 on one core at the thesis sizes; torch's cache shortens later compiles of "
+                    "the same sizes), then a step takes about half the time; compile_train_step=False skips it"
+                )
             # fallback_random: random numbers come from PyTorch's own generator (as in the plain step) instead of
             # inductor's in-kernel ones, which cost about 60 ns a sample on a CPU core
             options = {"fallback_random": True}
