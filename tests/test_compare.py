@@ -11,6 +11,7 @@ import json
 import math
 import os
 import stat
+import time
 from pathlib import Path
 
 import gymnasium as gym
@@ -19,13 +20,14 @@ import pandas as pd
 import pytest
 import yaml
 from gymnasium import spaces
-from stable_baselines3 import A2C
+from stable_baselines3 import A2C, SAC
 from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_gcrl.cli import ZOO_CONFIGS_DIR
 from sb3_gcrl.compare import PRESETS, EvaluationRecorder, LocalProcessBackend, compare, parse_method
 from sb3_gcrl.compare.cli import EXIT_USAGE, build_parser
 from sb3_gcrl.compare.cli import main as compare_main
+from sb3_gcrl.compare.costs import ALL_PHASES, PhaseClock
 from sb3_gcrl.compare.methods import check_env_id
 from sb3_gcrl.compare.report import summarize, write_outputs
 from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run, visited_goals
@@ -148,6 +150,10 @@ def test_tiny_comparison_end_to_end(tmp_path, monkeypatch, capsys):
     assert (run_dir / "zoo" / "sac").is_dir()  # RL-Zoo's own outputs (config.yml, monitor.csv)
     record = read_run_record(run_dir)
     assert 0 < record["cpu_time_s"] < 2 * record["wall_time_s"]  # one torch thread: CPU time about the wall time
+    split = record["cpu_split_s"]  # where the CPU time went: the phases add up to it
+    assert list(split) == list(ALL_PHASES) and split["train"] > 0 and split["evaluate"] > 0 and split["probe"] == 0
+    assert sum(split.values()) == pytest.approx(record["cpu_time_s"])
+    assert not hasattr(SAC.train, "__wrapped__")  # the clock's patch of the algorithm's train is gone
     summary = pd.read_csv(output / "summary.csv")
     assert summary["method"].tolist() == ["tiny_sac", "tiny_td3"]
     assert summary["n_runs"].tolist() == [2, 2]
@@ -483,6 +489,67 @@ def test_run_json_of_an_older_version_without_new_fields_still_counts_as_finishe
     del record["spec"]["env_kwargs"]  # a field added later, at its default value
     (tmp_path / "run.json").write_text(json.dumps(record))
     assert is_finished(tmp_path, spec)
+
+
+def burn(seconds: float) -> None:
+    """Spend about ``seconds`` of CPU time."""
+    end = time.process_time() + seconds
+    while time.process_time() < end:
+        pass
+
+
+def test_phase_clock_counts_each_timed_call_once_and_leaves_classes_as_it_found_them():
+    class Agent:
+        def train(self) -> None:
+            burn(0.05)
+
+        def learn(self) -> None:
+            burn(0.05)
+            self.train()
+
+    class Evaluator:
+        def on_step(self) -> bool:
+            burn(0.03)
+            Agent().train()  # inside an evaluation: counts to the evaluation only
+            return True
+
+    clock, evaluator = PhaseClock(), Evaluator()
+    clock.time_callback(evaluator, "evaluate")
+    start = time.process_time()
+    with clock.timing_method(Agent, "train", "train"):
+        Agent().learn()
+        evaluator.on_step()
+    total = time.process_time() - start
+    assert clock.cpu_s["train"] == pytest.approx(0.05, abs=0.02)
+    assert clock.cpu_s["evaluate"] == pytest.approx(0.08, abs=0.02)
+    split = clock.split(total)
+    assert list(split) == list(ALL_PHASES) and split["collect"] == pytest.approx(0.05, abs=0.02)
+    assert "train" in vars(Agent) and not hasattr(Agent.train, "__wrapped__")  # its own method is back
+
+    class Child(Agent):
+        pass
+
+    with clock.timing_method(Child, "train", "train"):  # inherited: patched on the class, then removed again
+        assert "train" in vars(Child) and "train" in vars(Agent)
+    assert "train" not in vars(Child) and Child.train is Agent.train
+    with pytest.raises(ValueError, match="phase must be one of"):
+        clock.timed("learn", burn)
+
+
+def test_report_splits_the_cpu_time_of_the_runs_that_recorded_it_by_phase(tmp_path):
+    rows = [{"timesteps": 0, "mean_return": 0.0}, {"timesteps": 10, "mean_return": 1.0}]
+    split = {"collect": 20.0, "train": 60.0, "evaluate": 10.0, "probe": 8.0, "checkpoint": 2.0}
+    spec = make_spec(seed=0)
+    result = RunResult(spec, "finished", rows, 110.0, 100.0, cpu_split_s=split)
+    write_run_result(tmp_path / "runs" / spec.relative_dir, result)
+    older = make_spec(method="n", seed=0)  # no split recorded: left out of the split table
+    write_run_result(tmp_path / "runs" / older.relative_dir, RunResult(older, "finished", rows, 40.0, 30.0))
+    summary = summarize(tmp_path, [spec, older])
+    write_outputs(tmp_path, summary, "t", "", 1.0)
+    report = (tmp_path / "report.md").read_text()
+    assert "| method | runs | train | collect | evaluate | probe | checkpoint |" in report
+    assert "| m | 1 | 60 s (60%) | 20 s (20%) | 10 s (10%) | 8 s (8%) | 2 s (2%) |" in report
+    assert "| n | 1 | 40 s | 30 s | 0.01 h |" in report and report.count("| n | 1 |") == 1
 
 
 def test_report_gives_wall_and_cpu_time_per_method_and_says_where_an_older_run_did_not_record_cpu(tmp_path):

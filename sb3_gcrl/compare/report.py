@@ -21,6 +21,7 @@ from sb3_gcrl.analysis.plots import (
     visitation_counts,
 )
 from sb3_gcrl.analysis.statistics import aggregate_scores, probability_of_improvement, run_scores, visitation_entropy
+from sb3_gcrl.compare.costs import ALL_PHASES
 from sb3_gcrl.compare.run import RunSpec
 from sb3_gcrl.compare.storage import (
     ALL_GOALS_FILE,
@@ -157,7 +158,9 @@ def summarize(
                     all_goals_runs.append((spec.env_id, spec.method, spec.seed, run_dir / ALL_GOALS_FILE))
                 cpu_time = record.get("cpu_time_s")  # runs of older versions did not record it
                 cpu_time = float(cpu_time) if isinstance(cpu_time, (int, float)) else math.nan
-                times.append((spec.env_id, spec.method, float(record["wall_time_s"]), cpu_time))
+                split = record.get("cpu_split_s") or {}
+                phases = [float(split[p]) if isinstance(split.get(p), (int, float)) else math.nan for p in ALL_PHASES]
+                times.append((spec.env_id, spec.method, float(record["wall_time_s"]), cpu_time, *phases))
                 run_dirs.setdefault((spec.env_id, spec.method), []).append(run_dir)
                 continue
         if problem is not None:
@@ -191,7 +194,9 @@ def summarize(
     scores_table = _in_order(pd.concat(scores, ignore_index=True), order) if scores else pd.DataFrame()
     summary = _in_order(pd.concat(summaries, ignore_index=True), order) if summaries else pd.DataFrame()
     table = format_table(summary, metrics) if len(summary) else "(no finished runs)"
-    run_times = pd.DataFrame(times, columns=["env", "method", "wall_time_s", "cpu_time_s"])
+    run_times = pd.DataFrame(
+        times, columns=["env", "method", "wall_time_s", "cpu_time_s", *(f"cpu_{p}_s" for p in ALL_PHASES)]
+    )
     result = Summary(curves, scores_table, summary, metrics, failed, table, run_times, run_dirs)
     if return_summaries:
         result.return_summary = _in_order(pd.concat(return_summaries, ignore_index=True), order)
@@ -262,6 +267,27 @@ def _cost_section(run_times: pd.DataFrame) -> list[str]:
             f"| {total_text} |"
         )
     lines.append("")
+    split = [f"cpu_{phase}_s" for phase in ALL_PHASES]
+    measured = run_times.dropna(subset=split)
+    if len(measured):
+        lines += [
+            "CPU time per run by phase, median over the runs that recorded it: *train* the gradient updates "
+            "(the algorithm's `train`, a compilation included), *evaluate* the evaluations, *probe* the diagnostics "
+            "callback, *checkpoint* the resumable checkpoints, *collect* the rest (env steps, acting, the other "
+            "callbacks, set-up).",
+            "",
+            f"| method | runs | {' | '.join(ALL_PHASES)} |",
+            "| --- | --- |" + " --- |" * len(ALL_PHASES),
+        ]
+        for method, group in measured.groupby("method", sort=False):
+            total = group["cpu_time_s"].median()
+            cells = []
+            for column in split:
+                value = group[column].median()
+                share = f" ({value / total:.0%})" if total > 0 else ""
+                cells.append(f"{value:,.0f} s{share}")
+            lines.append(f"| {method} | {len(group)} | {' | '.join(cells)} |")
+        lines.append("")
     return lines
 
 

@@ -104,7 +104,8 @@ class RunResult:
     """Outcome of a run: ``status`` is ``"finished"`` or ``"failed"`` (then ``error`` holds the traceback).
 
     ``wall_time_s`` and ``cpu_time_s`` are the run's wall and CPU time (its process's, all threads) as the worker
-    measured them.
+    measured them; ``cpu_split_s`` splits the CPU time into the phases of :data:`~sb3_gcrl.compare.costs.ALL_PHASES`
+    (gradient updates, data collection, evaluations, probes, checkpoints).
     ``visited_goals`` holds up to :data:`MAX_VISITED_POINTS` achieved goals of the training data (off-policy agents
     of goal envs only, else None), for state-visitation heatmaps and task-relevant shares.
     ``all_goals`` holds the rows of the run's :class:`~sb3_gcrl.post_exploration.AllGoalsEvalCallback` (None when
@@ -116,6 +117,7 @@ class RunResult:
     evaluations: list[dict[str, float]] = field(default_factory=list)
     wall_time_s: float = math.nan
     cpu_time_s: float = math.nan
+    cpu_split_s: dict[str, float] | None = None
     error: str = ""
     log: str = ""
     visited_goals: np.ndarray | None = None
@@ -277,8 +279,11 @@ def execute_run(
     :param report_progress: called with env-step increments (progress bars).
     :return: the run's result with its evaluation rows (and all-goals rows).
     """
+    from sb3_gcrl.compare.costs import PhaseClock, time_callbacks
+
     start, cpu_start = time.perf_counter(), time.process_time()
     recorder = all_goals = None
+    clock = PhaseClock()
     try:
         with contextlib.redirect_stdout(log_file), contextlib.redirect_stderr(log_file):
             prepare_process(spec.gym_packages)
@@ -340,21 +345,24 @@ def execute_run(
                         extra=lambda: {"spec": spec.to_dict(), "evaluations": recorder.records},
                     )
                 )
-            exp_manager.learn(model)
+            time_callbacks(clock, exp_manager.callbacks)
+            with clock.timing_method(type(model), "train", "train"):
+                exp_manager.learn(model)
             if model.num_timesteps < spec.n_timesteps:
                 # RL-Zoo's learn() swallows KeyboardInterrupt: never report a cut run as finished
                 raise RuntimeError(f"training stopped at {model.num_timesteps} of {spec.n_timesteps} steps")
-            recorder.evaluate_final()
+            clock.timed("evaluate", recorder.evaluate_final)()
             eval_env.close()
             if spec.save_model:
                 exp_manager.save_trained_model(model)
-        wall_time = time.perf_counter() - start
+        wall_time, cpu_time = time.perf_counter() - start, time.process_time() - cpu_start
         return RunResult(
             spec,
             "finished",
             recorder.records,
             wall_time,
-            time.process_time() - cpu_start,
+            cpu_time,
+            cpu_split_s=clock.split(cpu_time),
             visited_goals=visited_goals(model),
             all_goals=all_goals.records if all_goals is not None else None,
         )

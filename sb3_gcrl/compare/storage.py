@@ -90,6 +90,7 @@ def write_run_result(run_dir: Path, result: RunResult) -> None:
         "status": result.status,
         "wall_time_s": result.wall_time_s,
         "cpu_time_s": None if math.isnan(result.cpu_time_s) else result.cpu_time_s,  # None: not measured
+        "cpu_split_s": result.cpu_split_s,  # per phase (sb3_gcrl.compare.costs); None: not measured
         "n_evaluations": len(result.evaluations),
         # None: the run has no all-goals evaluation (no all_goals.csv is expected)
         "n_all_goals_evaluations": None if result.all_goals is None else len(result.all_goals),

@@ -1,0 +1,126 @@
+"""Where a run's CPU time goes: gradient updates, evaluations, probes and checkpoints, the rest being data collection.
+
+:class:`PhaseClock` times what a run calls, without changing it: the algorithm's ``train`` (patched on its class for
+the run, then restored, so that nothing of the clock is saved with the model) and the ``on_step`` of the run's
+evaluation, probe and checkpoint callbacks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+#: timed phases; the rest of a run's CPU time is "collect" (env steps, acting, the other callbacks, set-up)
+PHASES = ("train", "evaluate", "probe", "checkpoint")
+#: every phase of :meth:`PhaseClock.split`, in report order
+ALL_PHASES = ("train", "collect", *PHASES[1:])
+
+
+class PhaseClock:
+    """CPU time (the process's, all threads) spent inside the timed callables, per phase.
+
+    A call made while another timed call runs counts to the outer one only (an evaluation that calls ``train`` is
+    evaluation).
+    """
+
+    def __init__(self) -> None:
+        self.cpu_s = dict.fromkeys(PHASES, 0.0)
+        self._running = False
+
+    def timed(self, phase: str, function: Callable[..., Any]) -> Callable[..., Any]:
+        """``function``, with its CPU time added to ``phase``.
+
+        :param phase: one of :data:`PHASES`.
+        :param function: the callable to time.
+        """
+        if phase not in PHASES:
+            raise ValueError(f"phase must be one of {PHASES}, got {phase!r}")
+
+        @functools.wraps(function)
+        def timed_call(*args: Any, **kwargs: Any) -> Any:
+            if self._running:
+                return function(*args, **kwargs)
+            self._running = True
+            start = time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.cpu_s[phase] += time.process_time() - start
+                self._running = False
+
+        return timed_call
+
+    @contextlib.contextmanager
+    def timing_method(self, owner: type, name: str, phase: str) -> Iterator[None]:
+        """Time ``owner.name`` (a method, looked up through the class hierarchy) while the context lasts.
+
+        :param owner: the class whose instances' calls are timed (e.g. ``type(model)``).
+        :param name: the method's name.
+        :param phase: one of :data:`PHASES`.
+        """
+        own = name in vars(owner)
+        original = vars(owner)[name] if own else None
+        setattr(owner, name, self.timed(phase, getattr(owner, name)))
+        try:
+            yield
+        finally:
+            if own:
+                setattr(owner, name, original)
+            else:
+                delattr(owner, name)
+
+    def time_callback(self, callback: Any, phase: str) -> None:
+        """Time the ``on_step`` of one callback object (an instance attribute: callbacks are not saved).
+
+        :param callback: an SB3 callback.
+        :param phase: one of :data:`PHASES`.
+        """
+        callback.on_step = self.timed(phase, callback.on_step)
+
+    def split(self, total_cpu_s: float) -> dict[str, float]:
+        """The run's CPU time per phase of :data:`ALL_PHASES`; ``collect`` is the rest of ``total_cpu_s``.
+
+        :param total_cpu_s: the run's CPU time.
+        """
+        phases = {**self.cpu_s, "collect": max(0.0, total_cpu_s - sum(self.cpu_s.values()))}
+        return {phase: phases[phase] for phase in ALL_PHASES}
+
+
+def callback_phase(callback: Any) -> str | None:
+    """The phase a run's callback belongs to: ``"evaluate"`` (the run's evaluations, all-goals evaluations),
+    ``"probe"`` (a diagnostics callback), ``"checkpoint"``, or None (part of collecting data).
+
+    :param callback: an SB3 callback.
+    """
+    from sb3_gcrl.common.checkpoints import RunCheckpointCallback
+    from sb3_gcrl.compare.evaluation import EvaluationRecorder
+    from sb3_gcrl.morefree.diagnostics import MoReFreeDiagnosticsCallback
+    from sb3_gcrl.post_exploration.evaluation import AllGoalsEvalCallback
+
+    if isinstance(callback, (EvaluationRecorder, AllGoalsEvalCallback)):
+        return "evaluate"
+    if isinstance(callback, MoReFreeDiagnosticsCallback):
+        return "probe"
+    if isinstance(callback, RunCheckpointCallback):
+        return "checkpoint"
+    return None
+
+
+def time_callbacks(clock: PhaseClock, callbacks: list[Any]) -> None:
+    """Time every evaluation, probe and checkpoint callback among ``callbacks`` (``CallbackList``s searched).
+
+    :param clock: the run's clock.
+    :param callbacks: the run's callbacks (RL-Zoo's ``exp_manager.callbacks``).
+    """
+    from stable_baselines3.common.callbacks import CallbackList
+
+    pending = list(callbacks)
+    while pending:
+        callback = pending.pop(0)
+        if isinstance(callback, CallbackList):
+            pending[:0] = callback.callbacks
+        elif (phase := callback_phase(callback)) is not None:
+            clock.time_callback(callback, phase)
