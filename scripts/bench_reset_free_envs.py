@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 import sb3_gcrl  # noqa: F401  (registers GCRL/ ids)
-from sb3_gcrl.envs.reset_free import RESET_FREE_ENV_IDS
+from sb3_gcrl.envs.tasks import RESET_FREE_ENV_IDS
 
 # Stock envs the suite is built on, for comparison: (label, id, make kwargs).
 BASELINES = [

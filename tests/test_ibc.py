@@ -280,10 +280,7 @@ def test_errors_name_the_fix():
         ibc_go_explore(gym.make(ENV_ID))
 
 
-def test_subprocess_envs_are_refused_and_the_old_module_path_is_a_deprecated_alias(monkeypatch: pytest.MonkeyPatch):
-    import importlib
-    import sys
-
+def test_subprocess_envs_are_refused():
     from stable_baselines3.common.vec_env import SubprocVecEnv
 
     env = make_vec_env(ENV_ID, n_envs=1, seed=0, wrapper_class=ibc_env, vec_env_cls=SubprocVecEnv)
@@ -292,15 +289,6 @@ def test_subprocess_envs_are_refused_and_the_old_module_path_is_a_deprecated_ali
             IBC("MultiInputPolicy", env)
     finally:
         env.close()
-    for name in [m for m in sys.modules if m == "sb3_gcrl.ibc" or m.startswith("sb3_gcrl.ibc.")]:
-        monkeypatch.delitem(sys.modules, name)
-    with pytest.warns(DeprecationWarning, match="sb3_gcrl.reset_free_baselines"):
-        old = importlib.import_module("sb3_gcrl.ibc")
-    assert (old.IBC, old.IBCCurriculumScheduler, old.ibc_go_explore) == (IBC, IBCCurriculumScheduler, ibc_go_explore)
-    assert old.find_ibc_scheduler is find_ibc_scheduler and sb3_gcrl.IBC is IBC
-    # runs pickled before the move name the old modules
-    assert importlib.import_module("sb3_gcrl.ibc.curriculum").IBCCurriculumScheduler is IBCCurriculumScheduler
-    assert importlib.import_module("sb3_gcrl.ibc.ibc").IBC is IBC
 
 
 # ---------------------------------------------------------------------------------------------------------- configs

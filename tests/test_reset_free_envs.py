@@ -89,18 +89,6 @@ def test_registry_matches_task_table():
     }
 
 
-def test_deprecated_reset_free_names_warn_and_point_to_the_task_table():
-    import sb3_gcrl.envs.reset_free as reset_free
-
-    with pytest.warns(DeprecationWarning, match="sb3_gcrl.envs.tasks.TASKS"):
-        old_table = reset_free.RESET_FREE_TASKS
-    assert old_table == {env_id: task for env_id, task in TASKS.items() if task.reset_free} and len(old_table) == 8
-    with pytest.warns(DeprecationWarning, match="register_tasks"):
-        assert reset_free.register_reset_free_envs is register_tasks
-    with pytest.raises(AttributeError):
-        reset_free.NO_SUCH_NAME  # noqa: B018
-
-
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_check_env_and_spaces(env_id):
     env = gym.make(env_id)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +10,6 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.env_util import make_vec_env
 from test_wrappers import LineGoalEnv
 
-from sb3_gcrl.common import validation
 from sb3_gcrl.common.validation import (
     check_bool,
     check_choice,
@@ -127,16 +125,6 @@ def test_check_saved_rows_says_what_is_wrong() -> None:
         check_saved_rows(state, "CECMemory", 3, 1, ["values"])
     with pytest.raises(ValueError, match=r"Saved CECMemory state lacks \['actions'\]"):
         check_saved_rows(state, "CECMemory", 3, 10, ["values", "actions"])
-
-
-def test_the_old_module_path_still_works_with_a_deprecation_warning() -> None:
-    from sb3_gcrl.memory import validation as old
-
-    with pytest.warns(DeprecationWarning, match=r"import check_int from sb3_gcrl.common.validation"):
-        assert old.check_int is validation.check_int
-    with warnings.catch_warnings(), pytest.raises(AttributeError):
-        warnings.simplefilter("ignore", DeprecationWarning)
-        old.check_nothing  # noqa: B018
 
 
 def test_an_output_folder_is_checked_without_creating_it(tmp_path: Path) -> None:

@@ -20,39 +20,4 @@ GCRL/Tabletop-v0                       200         2e5                EARL Table
 GCRL/SawyerDoor-v0                     300         2e5                EARL Sawyer Door (needs metaworld)
 GCRL/PointUMazeGoal-v0                 300         2e5                IBC PointUMaze (thesis: 100, larger maze)
 =====================================  ==========  =================  =========================================
-
-``RESET_FREE_TASKS``, ``RESET_FREE_ENV_IDS``, ``ResetFreeTask`` and ``register_reset_free_envs`` of this module are
-deprecated names of the task table's (:mod:`sb3_gcrl.envs.tasks`), kept for one release.
 """
-
-from __future__ import annotations
-
-import warnings
-from typing import Any
-
-#: deprecated name -> (the name in :mod:`sb3_gcrl.envs.tasks`, what to use instead)
-_DEPRECATED = {
-    "RESET_FREE_TASKS": ("TASKS", "TASKS (the reset-free tasks are those with task.reset_free)"),
-    "RESET_FREE_ENV_IDS": ("RESET_FREE_ENV_IDS", "RESET_FREE_ENV_IDS"),
-    "ResetFreeTask": ("Task", "Task"),
-    "register_reset_free_envs": ("register_tasks", "register_tasks"),
-}
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _DEPRECATED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import sb3_gcrl.envs.tasks as tasks  # the table imports this package's env modules: import it when asked
-
-    target, replacement = _DEPRECATED[name]
-    warnings.warn(
-        f"sb3_gcrl.envs.reset_free.{name} is deprecated: use sb3_gcrl.envs.tasks.{replacement}",
-        DeprecationWarning,
-        stacklevel=2,
-    )
-    if name == "RESET_FREE_TASKS":
-        return {env_id: task for env_id, task in tasks.TASKS.items() if task.reset_free}
-    return getattr(tasks, target)
-
-
-__all__: list[str] = []
