@@ -20,7 +20,6 @@ import importlib
 import itertools
 import os
 import sys
-import warnings
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -426,8 +425,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     :return: exit code.
     """
     args = list(sys.argv[1:] if argv is None else argv)
-    # this package's DeprecationWarnings (an old config name) reach the command line, whoever called it
-    warnings.filterwarnings("default", category=DeprecationWarning, module=r"sb3_gcrl(\.|$)")
     try:
         code = _dispatch(args)
         sys.stdout.flush()  # inside the try: a reader gone before the last buffered lines is a broken pipe too

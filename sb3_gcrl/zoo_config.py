@@ -55,59 +55,6 @@ ZOO_KEYS = frozenset(
 RUN_SET_ARGUMENTS = frozenset({"env", "seed", "verbose", "device", "tensorboard_log"})
 
 
-def _reset_free_names() -> dict[str, tuple[str, str | None]]:
-    """Old names of the reset-free configs: the model-free MoReFree port (SAC) and its baselines, MoReFree (world
-    model), IBC, MEDAL and R3L, one file per task and method."""
-    tasks = ("pointumaze", "ant", "tabletop", "sawyer_door", "fetch_push", "fetch_pick_and_place")
-    tasks += ("fetch_push_hard", "fetch_pick_and_place_hard")
-    ablations = ("pointumaze", "ant", "fetch_push_hard", "fetch_pick_and_place_hard")
-    names: dict[str, tuple[str, str | None]] = {}
-    for task in tasks:
-        port = ["oracle", "naive", "goexplore"] + (["wo_bf", "wo_relabel", "alpha1"] if task in ablations else [])
-        names[f"reset_free_{task}_morefree"] = ("sac", None)
-        # the port's CPU preset, removed (no evaluation success in 100k steps); the full port learns
-        names[f"reset_free_{task}_morefree_cpu"] = ("sac", None)
-        names.update({f"reset_free_{task}_{method}": ("sac", method) for method in port})
-        world_model = ["peg"] + (["wo_bf", "wo_imag"] if task in ablations else [])
-        # CPU presets that were never measured are gone: their old names take the thesis's sections
-        cpu = "" if task in ("pointumaze", "tabletop") else "_thesis"
-        for preset, file in (("cpu", f"morefree{cpu}"), ("thesis", "morefree_thesis")):
-            names[f"morefree_{task}_morefree_{preset}"] = (file, None)
-            names.update({f"morefree_{task}_{method}_{preset}": (file, method) for method in world_model})
-        names[f"ibc_{task}_cpu"] = (f"ibc{cpu}", None)
-        names[f"ibc_{task}"] = ("ibc_thesis", None)
-        names[f"r3l_{task}"] = ("r3l", None)
-    names.update({"medal_pointumaze": ("medal", None), "medal_tabletop": ("medal", None)})
-    return names
-
-
-def _other_names() -> dict[str, tuple[str, str | None]]:
-    """Old names of the configs of thesis Ch. 4-6 (one file per variant)."""
-    names: dict[str, tuple[str, str | None]] = {
-        "sac_ch4": ("sac", None),
-        "dqn_minatar": ("dqn", None),
-        "two_memory_stock_dqn": ("dqn", "two_memory"),
-        "tabular_2m_no_sharing": ("tabular_2m", "no_sharing"),
-    }
-    names.update({f"two_memory_dqn_{v}": ("two_memory_dqn", v) for v in ("adaptive", "constant", "increasing")})
-    names["two_memory_dqn_no_sharing"] = ("two_memory_dqn", "no_sharing")
-    for variant in ("off", "on", "adaptive"):
-        default = None if variant == "adaptive" else variant  # adaptive post-exploration is the default section
-        for task in ("fourrooms", "lavacrossing", "lavagap"):
-            names[f"post_exploration_{task}_{variant}"] = ("imgep", default)
-        for task in ("fetchreach", "pointumaze"):
-            names[f"post_exploration_{task}_ddpg_{variant}"] = ("ddpg", default)
-            if variant != "adaptive":
-                names[f"post_exploration_{task}_sac_{variant}"] = ("sac", f"post_exploration_{variant}")
-    return names
-
-
-#: config names of earlier releases (one file per method, task and variant) -> (file stem in :data:`ZOO_CONFIGS_DIR`,
-#: variant); ``-conf OLD``, ``-conf zoo_configs/OLD.yml`` and compare's ``ALGO:OLD`` still work, with a
-#: DeprecationWarning naming the new spelling (to be removed in the next release)
-OLD_CONFIG_NAMES: dict[str, tuple[str, str | None]] = {**_reset_free_names(), **_other_names()}
-
-
 class ConfigNotFoundError(ValueError):
     """No config file, or no section of one, for an algorithm, env and variant; the message names the files searched,
     the envs they cover and the variants of the env."""
@@ -297,20 +244,6 @@ class ResolvedConfig:
         return path
 
 
-def new_config_spelling(file: str, variant: str | None) -> tuple[str, str]:
-    """How ``sb3-gcrl train`` and ``sb3-gcrl compare`` name a section of a shipped file.
-
-    :param file: file stem in :data:`ZOO_CONFIGS_DIR` (``morefree_thesis``).
-    :param variant: variant, or None.
-    :return: ``(train options, compare method)``, e.g. ``("-conf morefree_thesis --variant peg",
-        "morefree@peg:morefree_thesis")``.
-    """
-    algo = file.removesuffix(THESIS_SUFFIX)
-    train = f"--algo {algo}" + (f" -conf {file}" if file != algo else "") + (f" --variant {variant}" if variant else "")
-    method = algo + (f"{VARIANT_SEPARATOR}{variant}" if variant else "") + (f":{file}" if file != algo else "")
-    return train, method
-
-
 def shipped_config(name: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Path | None:
     """The config this package ships under ``name`` (``"cec"``, ``"cec.yml"``), or None.
 
@@ -325,33 +258,20 @@ def shipped_config(name: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Path | None
     return None
 
 
-def find_config(name: str | Path, config_dir: Path = ZOO_CONFIGS_DIR) -> tuple[Path, str | None]:
-    """The config file a user named: a path, a shipped file's name (``sac``, ``morefree_thesis.yml``), or a name of an
-    earlier release (:data:`OLD_CONFIG_NAMES`: its file and variant, with a DeprecationWarning).
+def find_config(name: str | Path, config_dir: Path = ZOO_CONFIGS_DIR) -> Path:
+    """The config file a user named: a path or a shipped file's name (``sac``, ``morefree_thesis.yml``).
 
     :param name: what ``-conf`` or compare's ``ALGO:CONFIG`` got.
     :param config_dir: folder of the shipped configs.
-    :return: ``(file, variant)``; the variant is None unless an old name implies one.
+    :return: the file.
     :raises ConfigNotFoundError: no such file; the message lists the shipped names.
     """
     path = Path(name)
     if path.is_file():
-        return path, None
+        return path
     shipped = shipped_config(str(name), config_dir)
     if shipped is not None:
-        return shipped, None
-    bare = path.name == str(name)
-    if path.suffix in ("", ".yml") and (bare or path.parent.name == "zoo_configs") and path.stem in OLD_CONFIG_NAMES:
-        file, variant = OLD_CONFIG_NAMES[path.stem]
-        train, method = new_config_spelling(file, variant)
-        warnings.warn(
-            f"config {str(name)!r} is deprecated and goes in the next release: its settings are now "
-            f"{section_key('<env id>', variant)} of zoo_configs/{file}.yml (sb3-gcrl train {train}; "
-            f"sb3-gcrl compare -m {method})",
-            DeprecationWarning,
-            stacklevel=3,
-        )
-        return config_dir / f"{file}.yml", variant
+        return shipped
     names = sorted(p.stem for p in config_dir.glob("*.yml"))
     raise ConfigNotFoundError(
         f"config {str(name)!r} not found at {path.resolve()}, nor shipped under that name. Files in {config_dir}: "
@@ -383,17 +303,7 @@ def resolve_config(
         variants of ``env_id``.
     """
     variant = variant or None
-    if config is not None:
-        path, implied = find_config(config, config_dir)
-        if implied is not None and variant not in (None, implied):
-            raise ConfigNotFoundError(
-                f"config {str(config)!r} is variant {implied!r}; it cannot also be variant {variant!r}: name the file "
-                f"{path.name} and the variant instead"
-            )
-        variant = variant or implied
-        candidates = [path]
-    else:
-        candidates = default_config_files(algo, config_dir)
+    candidates = default_config_files(algo, config_dir) if config is None else [find_config(config, config_dir)]
     for path in candidates:
         sections = read_zoo_config(path)
         key = _section_key(sections, env_id, variant)

@@ -15,7 +15,6 @@ import yaml
 from sb3_gcrl.algorithms import ALGORITHMS
 from sb3_gcrl.envs.tasks import TASKS
 from sb3_gcrl.zoo_config import (
-    OLD_CONFIG_NAMES,
     THESIS_SUFFIX,
     ZOO_CONFIGS_DIR,
     ConfigNotFoundError,
@@ -179,40 +178,6 @@ def test_variants_are_written_keyed_by_the_env_id_for_rl_zoo(tmp_path: Path) -> 
     assert default.zoo_file(tmp_path) == default.path and default.digest != resolved.digest
 
 
-def test_old_config_names_warn_and_resolve_to_their_section(tmp_path: Path) -> None:
-    from sb3_gcrl.cli import resolve_train_config
-    from sb3_gcrl.compare.methods import parse_method
-
-    env = ["--env", "GCRL/PointUMazeGoal-v0"]
-    for name in ("morefree_pointumaze_peg_cpu", "zoo_configs/morefree_pointumaze_peg_cpu.yml"):
-        with pytest.deprecated_call(match=r"morefree_pointumaze_peg_cpu.*sb3-gcrl train --algo morefree --variant peg"):
-            argv, resolved = resolve_train_config(["--algo", "morefree", *env, "-conf", name])
-        assert resolved == resolve_config("morefree", "GCRL/PointUMazeGoal-v0", "peg")
-        assert argv[-1] == str(ZOO_CONFIGS_DIR / "morefree.yml")
-    with pytest.deprecated_call(match=r"sb3-gcrl compare -m morefree@peg:morefree_thesis"):
-        _, resolved = resolve_train_config(["--algo", "morefree", *env, "-conf", "morefree_pointumaze_peg_thesis"])
-    assert resolved.path.name == "morefree_thesis.yml" and resolved.variant == "peg"
-    # the SAC port's removed CPU presets: the full port
-    with pytest.deprecated_call(match="sb3-gcrl train --algo sac;"):
-        _, resolved = resolve_train_config(["--algo", "sac", *env, "-conf", "reset_free_pointumaze_morefree_cpu"])
-    assert resolved == resolve_config("sac", "GCRL/PointUMazeGoal-v0")
-    with pytest.deprecated_call(match="sb3-gcrl compare -m sac@naive"):
-        method = parse_method("sac:reset_free_pointumaze_naive")
-    assert method.label == "reset_free_pointumaze_naive" and method.variant == "naive"  # results keep their label
-    assert method.resolve("GCRL/PointUMazeGoal-v0") == resolve_config("sac", "GCRL/PointUMazeGoal-v0", "naive")
-    with pytest.deprecated_call():
-        assert parse_method("dqn=dqn:dqn_minatar").resolve("MinAtar/Breakout-v1").key == "MinAtar/Breakout-v1"
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # the new names do not warn
-        resolve_train_config(["--algo", "morefree", *env, "-conf", "morefree_thesis", "--variant", "peg"])
-        parse_method("morefree@peg:morefree_thesis")
-    # the table: every old name reaches a file and variant that exist
-    for old, (file, variant) in OLD_CONFIG_NAMES.items():
-        sections = config_sections(ZOO_CONFIGS_DIR / f"{file}.yml")
-        assert variant is None or any(variant in v for v in sections.values()), old
-        assert not (ZOO_CONFIGS_DIR / f"{old}.yml").exists(), f"{old}.yml is still shipped"
-
-
 def test_compare_specs_with_variants_and_their_labels() -> None:
     from sb3_gcrl.compare.methods import method_label, parse_method
 
@@ -221,8 +186,6 @@ def test_compare_specs_with_variants_and_their_labels() -> None:
     assert method_label("morefree@peg:morefree_thesis") == "morefree_thesis_peg"
     method = parse_method("morefree@peg:morefree_thesis")
     assert method.variant == "peg" and method.config == ZOO_CONFIGS_DIR / "morefree_thesis.yml"
-    with pytest.raises(ValueError, match="is variant 'naive', not 'oracle'"), pytest.deprecated_call():
-        parse_method("sac@oracle:reset_free_pointumaze_naive")
 
 
 def test_the_run_digest_covers_the_resolved_section(tmp_path: Path) -> None:

@@ -118,10 +118,6 @@ def method_label(spec: str) -> str:
 def parse_method(spec: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Method:
     """Parse ``ALGO[@VARIANT][:CONFIG]`` or ``LABEL=ALGO[@VARIANT][:CONFIG]`` (see the module docstring).
 
-    A config name of an earlier release (one file per method, task and variant) still works, with a
-    DeprecationWarning naming the new spelling (:data:`~sb3_gcrl.zoo_config.OLD_CONFIG_NAMES`); the method keeps its
-    label.
-
     :param spec: the method as written on the command line.
     :param config_dir: folder where a bare config name is looked up.
     :return: the method.
@@ -138,16 +134,12 @@ def parse_method(spec: str, config_dir: Path = ZOO_CONFIGS_DIR) -> Method:
     if variant and not _VARIANT_RE.match(variant):
         raise ValueError(f"Variant {variant!r} of method {spec!r} may only use letters, digits and _ . - +")
     config: Path | None = None
-    implied: str | None = None
     if config_name:
         try:
-            config, implied = find_config(config_name, config_dir)
+            config = find_config(config_name, config_dir).resolve()
         except ValueError as error:
             raise ValueError(f"Method {spec!r}: {error}") from None
-        config = config.resolve()
-        if implied is not None and variant and variant != implied:
-            raise ValueError(f"Method {spec!r}: config {config_name!r} is variant {implied!r}, not {variant!r}")
     label = method_label(spec)
     if not _LABEL_RE.match(label):
         raise ValueError(f"Method label {label!r} may only use letters, digits and _ . - + (it names folders)")
-    return Method(label=label, algo=algo, config=config, variant=variant or implied)
+    return Method(label=label, algo=algo, config=config, variant=variant or None)
