@@ -647,3 +647,54 @@ def test_a_nan_reward_of_the_sac_ports_goal_command_names_vec_check_nan():
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"compute_reward returned the reward nan .*VecCheckNan"):
         env.step(env.action_space.sample())
+
+
+class NanRewardAfter(gym.Wrapper):
+    """The env's reward turns NaN from the ``after``-th step on (a sensor fault, a division by zero)."""
+
+    def __init__(self, env: gym.Env, after: int) -> None:
+        super().__init__(env)
+        self.after, self.steps = after, 0
+
+    def step(self, action: Any) -> Any:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.steps += 1
+        return obs, float("nan") if self.steps >= self.after else reward, terminated, truncated, info
+
+
+@pytest.mark.parametrize("training", [True, False])
+def test_a_nan_env_reward_stops_stock_sac_at_the_step_that_returned_it(training: bool) -> None:
+    """Stock SAC on the reset-free wrappers (no goal command): a NaN reward of the env stops at its step, naming
+    VecCheckNan, instead of failing inside torch at a later update."""
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from sb3_gcrl.callbacks import ResetFreeCallback
+
+    def wrap(env: gym.Env) -> gym.Env:
+        return ResetFreeWrapper(NanRewardAfter(env, after=30), hard_reset_every=1000, segment_length=10)
+
+    env = make_vec_env("Pendulum-v1", n_envs=1, seed=0, wrapper_class=wrap)
+    model = SAC("MlpPolicy", env, learning_starts=10, batch_size=8, policy_kwargs={"net_arch": [8]}, seed=0)
+    callback = ResetFreeCallback()
+    if not training:  # episodic training on purpose
+        env.env_method("set_training_mode", False)
+        callback = None
+    mode = "training" if training else "evaluation"
+    match = rf"The env wrapped in ResetFreeWrapper returned the reward nan in {mode} mode: .*VecCheckNan"
+    with pytest.raises(ValueError, match=match):
+        model.learn(100, callback=callback)
+    assert model.num_timesteps == 29  # stopped in the 30th step, before SB3 stored it
+
+
+def test_the_outermost_mode_switched_wrapper_checks_the_reward_it_returns() -> None:
+    """Under a goal wrapper the env's reward is checked where it is returned: in evaluation mode (the env's own)."""
+    env = GoalCommandWrapper(ResetFreeWrapper(NanRewardAfter(LineGoalEnv(), after=2), eval_horizon=10))
+    env.reset(seed=0)
+    env.step(env.action_space.sample())
+    with pytest.raises(ValueError, match=r"wrapped in GoalCommandWrapper returned the reward nan in evaluation"):
+        env.step(env.action_space.sample())
+    env.set_training_mode(True)  # training mode: the commanded goal's reward (compute_reward) replaces the env's
+    env.reset()
+    _, reward, *_ = env.step(env.action_space.sample())
+    assert np.isfinite(reward)

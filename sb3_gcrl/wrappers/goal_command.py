@@ -220,8 +220,11 @@ class GoalCommandWrapper(
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
         if not self.training:
-            return self._evaluation_step(action)
+            obs, reward, terminated, truncated, info = self._evaluation_step(action)
+            self._check_reward(reward)
+            return obs, reward, terminated, truncated, info
         obs, reward, terminated, truncated, info = self._training_step(action)
+        self._check_reward(reward)
         if self._recording:  # the outermost mode-switched wrapper reports the segments (Monitor CSV, rollout/*)
             self._segments.step(reward, terminated or truncated, info, self.goal_kind)  # type: ignore[arg-type]
         return obs, reward, terminated, truncated, info

@@ -20,16 +20,18 @@ In training mode the outermost mode-switched wrapper of a chain reports the segm
 
 from __future__ import annotations
 
+import math
 import pickle
 import sys
 import warnings
-from typing import Any
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 from stable_baselines3.common.env_util import unwrap_wrapper
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_gcrl.common.validation import check_finite_rewards
 from sb3_gcrl.wrappers.segments import SegmentRecorder
 
 
@@ -111,6 +113,25 @@ class TrainingModeMixin:
 
     def _on_training_mode(self, training: bool) -> None:  # noqa: B027 (optional hook)
         """Apply a mode switch (no-op by default)."""
+
+    def _check_reward(self, reward: SupportsFloat) -> None:
+        """Reject a NaN or infinite reward where the chain hands it to SB3 (in the outermost mode-switched wrapper,
+        in both modes), so that a plain SB3 algorithm stops at the step that returned it instead of failing later
+        inside torch (the package's own algorithms check what they store: :class:`~sb3_gcrl.common.validation.
+        FiniteRewardsMixin`).
+
+        :param reward: the reward this wrapper returns.
+        :raises ValueError: naming the wrapper, the mode and ``VecCheckNan``, for a non-finite reward.
+        """
+        if self._has_mode_above or (isinstance(reward, float) and math.isfinite(reward)):  # hot path: every step
+            return
+        check_finite_rewards(
+            reward,  # type: ignore[arg-type]
+            f"in {'training' if self.training else 'evaluation'} mode",
+            "SB3 learns from it (a NaN makes the networks' losses and actions NaN, and training fails later inside "
+            "torch)",
+            source=f"The env wrapped in {type(self).__name__}",
+        )
 
     @property
     def longest_segment(self) -> int | None:

@@ -146,6 +146,7 @@ class ResetFreeWrapper(TrainingModeMixin, gym.Wrapper, gym.utils.RecordConstruct
             if error.args and error.args[0] in self._segments.info_keywords:
                 raise missing_info_keyword(error.args[0]) from error
             raise
+        self._check_reward(reward)
         self.total_steps += 1
         self._steps_since_reset += 1
         self._segment_steps += 1
