@@ -21,7 +21,7 @@ import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
 from sb3_gcrl.envs.growing_tree import GrowingTreeGoalEnv
 from sb3_gcrl.morefree import MoReFree, SequenceReplayBuffer, morefree_go_explore
-from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler
+from sb3_gcrl.morefree.goals import PEGScheduler
 from sb3_gcrl.morefree.networks import (
     RSSM,
     DisagreementEnsemble,
@@ -705,8 +705,6 @@ def test_goal_requests_are_answered_through_the_wrapper_and_an_open_one_stops_th
     assert not plain.takes_planned_goals and plain.acting_policy == "goal"
     with pytest.raises(ValueError, match="takes_planned_goals"):
         plain.set_goal_planning(True)
-    with pytest.warns(DeprecationWarning, match="explore_policy='agent'"):
-        AgentExploreAction(plain.action_space)
 
 
 def test_executed_explore_actions_are_stored_with_a_random_explorer():

@@ -6,14 +6,13 @@ Not to be confused with the model-free port of MoReFree's two mechanisms (SAC/TD
 
 from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
 from sb3_gcrl.morefree.diagnostics import MoReFreeDiagnosticsCallback
-from sb3_gcrl.morefree.goals import AgentExploreAction, PEGScheduler, morefree_go_explore
+from sb3_gcrl.morefree.goals import PEGScheduler, morefree_go_explore
 from sb3_gcrl.morefree.morefree import MoReFree
 from sb3_gcrl.morefree.policies import CPU_NETWORK, THESIS_NETWORK, MoReFreePolicy
 
 __all__ = [
     "CPU_NETWORK",
     "THESIS_NETWORK",
-    "AgentExploreAction",
     "MoReFree",
     "MoReFreeDiagnosticsCallback",
     "MoReFreePolicy",

@@ -17,11 +17,9 @@ this module only plugs the agent into them, through the wrapper's public interfa
 
 from __future__ import annotations
 
-import warnings
 from typing import Any
 
 import gymnasium as gym
-import numpy as np
 
 from sb3_gcrl.goals.schedulers import BackAndForthScheduler
 from sb3_gcrl.wrappers.go_explore import AgentGoalScheduler, GoExploreWrapper
@@ -37,38 +35,6 @@ class PEGScheduler(AgentGoalScheduler):
     :param fallback: scheduler used until the agent can plan (e.g. :class:`~sb3_gcrl.goals.NoveltyScheduler`);
         it also sees every achieved goal.
     """
-
-
-class AgentExploreAction:
-    """Deprecated: build the :class:`~sb3_gcrl.wrappers.GoExploreWrapper` with ``explore_policy="agent"``.
-
-    An ``explore_policy`` that executes an action written into :attr:`action` before each Explore step (uniform
-    random actions when none was written). Only an agent in the env's own process can write it, so
-    :class:`~sb3_gcrl.morefree.MoReFree` no longer does: the wrapper executes the agent's action itself.
-
-    :param action_space: the env's action space.
-    """
-
-    def __init__(self, action_space: gym.spaces.Box) -> None:
-        warnings.warn(
-            "AgentExploreAction is deprecated: build the GoExploreWrapper with explore_policy='agent' "
-            "(morefree_go_explore(..., explorer='agent') does), so that the agent's explorer acts in any VecEnv",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        self.action_space = action_space
-        self.action: np.ndarray | None = None
-        self.n_agent = 0
-        self.n_random = 0
-
-    def __call__(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
-        action, self.action = self.action, None
-        if action is None:
-            self.n_random += 1
-            low, high = self.action_space.low, self.action_space.high
-            return rng.uniform(low, high).astype(self.action_space.dtype)
-        self.n_agent += 1
-        return action
 
 
 #: exploratory goal distributions of :func:`morefree_go_explore`
