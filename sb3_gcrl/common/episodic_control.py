@@ -201,10 +201,9 @@ class EpisodicControlPolicy(BasePolicy):
 
     def set_extra_state(self, state: dict[str, th.Tensor]) -> None:
         """Restore what :meth:`get_extra_state` returned (see :func:`load_memory_state`); the action-sampling
-        generator continues where the saved one stopped (files saved before it was kept: reseeded as built)."""
+        generator continues where the saved one stopped."""
         load_memory_state(self, self.memory, self.embedding, state)
-        if "rng" in state:
-            self.rng = restore_generator(state["rng"])
+        self.rng = restore_generator(state["rng"])
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()

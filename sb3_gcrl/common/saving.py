@@ -8,7 +8,7 @@ class that saved it.
   ``save`` is atomic and records the class in the archive (entry :data:`SAVED_BY_ENTRY`); ``load`` first checks the
   archive (:func:`check_model_file`), so that a truncated or damaged file, a zip that is no model, or a file
   saved by another of our algorithms is refused with a :class:`ModelFileError` that names the fix, instead of an
-  error from deep inside SB3. Files saved before the entry existed load as before.
+  error from deep inside SB3. A file without the entry (written by SB3's own ``save``) is loaded as SB3 loads it.
 * :func:`refuse_learning_rate_schedule`: for policy constructors whose third argument is not SB3's learning-rate
   schedule, so that SB3's own ``load`` of one of our files (``SAC.load`` of a CEC model) names the right class.
 """

@@ -117,8 +117,7 @@ class TabularTablePolicy(TabularBasePolicy):
                 f"saved {self.table_label} has shape {table.shape}, this policy expects {self.table.shape}"
             )
         self.table[...] = table
-        if "rng" in state:  # (files saved before the generator was saved keep the one seeded at construction)
-            self.rng = restore_generator(state["rng"])
+        self.rng = restore_generator(state["rng"])
 
 
 class TabularQPolicy(TabularTablePolicy):

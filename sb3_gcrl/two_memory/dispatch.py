@@ -25,7 +25,6 @@ dispatcher from a callback.
 
 from __future__ import annotations
 
-import warnings
 from typing import Any, ClassVar
 
 import numpy as np
@@ -535,7 +534,6 @@ class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRu
 
     def _setup_model(self) -> None:
         """Check the policy class, pick the replay buffer by the data-sharing setting, build the SB3 model."""
-        self._migrate_settings_of_old_files()
         if not issubclass(self.policy_class, self.two_memory_policy_class):
             raise ValueError(
                 f"{type(self).__name__} needs a {self.two_memory_policy_class.__name__} (aliases "
@@ -557,39 +555,6 @@ class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRu
         dispatcher = getattr(self, "dispatcher", None)
         if dispatcher is not None:
             dispatcher.seed(seed)
-
-    def _migrate_settings_of_old_files(self) -> None:
-        """Move the dispatcher's settings of a model file saved before :class:`TwoMemoryDispatcher` owned them into
-        the dispatcher (``load`` set the file's data as attributes before the set-up).
-
-        Those files kept ``data_sharing``, ``ec_gamma`` and ``ec_update_truncated`` in ``policy_kwargs`` (the 2M
-        policies of today refuse them) and as attributes of the algorithm, with the ``p_ec_schedule`` spec and the
-        ``p_ec`` of the last draw.
-        """
-        old_settings = {
-            name: self.policy_kwargs[name] for name in TwoMemoryDispatcher.settings if name in self.policy_kwargs
-        }  # type: ignore[has-type]
-        if not old_settings:
-            return
-        warnings.warn(
-            f"This {type(self).__name__} model file was saved before the 2M training settings moved from the policy "
-            f"to the TwoMemoryDispatcher; its settings {sorted(old_settings)} were moved there. Save the model again "
-            "to write the current layout",
-            DeprecationWarning,
-            stacklevel=4,
-        )
-        state = self.__dict__
-        self.policy_kwargs = {k: v for k, v in self.policy_kwargs.items() if k not in old_settings}  # type: ignore[has-type]
-        schedule = state.pop("p_ec_schedule", None)
-        last_p_ec = state.pop("p_ec", None)
-        for name in (*TwoMemoryDispatcher.settings, "score_window", *state.pop("ec_settings", ())):
-            state.pop(name, None)  # the old attributes of the settings, now the dispatcher's or the policy's
-        self.dispatcher = TwoMemoryDispatcher(
-            self.default_p_ec_schedule if schedule is None else schedule, **old_settings
-        )
-        self.dispatcher.use_gamma_by_default(self.gamma)  # type: ignore[attr-defined]
-        if last_p_ec is not None:
-            self.dispatcher.p_ec = float(last_p_ec)
 
     def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
         previous_obs = self._last_obs  # type: ignore[has-type]

@@ -116,10 +116,9 @@ class KeyedMemoryDispatchMixin(TwoMemoryDispatchMixin):
 
     def _load_episodic_state(self, state: dict[str, th.Tensor]) -> None:
         state = dict(state)
-        saved_rng = state.pop("ec_rng", None)  # (files saved before it was saved keep the generator of ec_seed)
+        saved_rng = state.pop("ec_rng")
         load_memory_state(self, self.memory, self.embedding, state)
-        if saved_rng is not None:
-            self.rng = restore_generator(saved_rng)
+        self.rng = restore_generator(saved_rng)
 
 
 class TwoMemoryDQNPolicy(KeyedMemoryDispatchMixin, DQNPolicy):
