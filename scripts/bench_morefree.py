@@ -55,6 +55,7 @@ from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
+from sb3_gcrl.common.hardware import describe_cpu
 from sb3_gcrl.morefree import CPU_NETWORK, THESIS_NETWORK, MoReFree, morefree_go_explore
 from sb3_gcrl.wrappers import ResetFreeWrapper
 
@@ -253,7 +254,7 @@ def main() -> None:
     args = parser.parse_args()
     th.set_num_threads(1)
 
-    print(f"one thread, device {args.device}, load before: {os.getloadavg()[0]:.1f}")
+    print(f"CPU: {describe_cpu()}; one thread, device {args.device}, load before: {os.getloadavg()[0]:.1f}")
     print("| setting | step | train steps/s (median) | CPU s per step | set-up + compile s | runs (steps/s) |")
     print("|---|---|---|---|---|---|")
     for setting in args.settings:
@@ -302,7 +303,7 @@ def main() -> None:
             print(f"| {setting} | ratio {best} / before | {float(np.median(rates[best])) / before:.2f}x | | | |")
         if args.profile:
             profiles = {variant: profile_steps(model, args.profile) for variant, model in models.items()}
-            print(f"\n{setting}: CPU ms per training step ({args.profile} profiled steps, torch.profiler)\n")
+            print(f"\n{setting}: CPU ms per training step ({args.profile} profiled steps, torch.profiler; {describe_cpu()})\n")
             print("| part of the step | " + " | ".join(profiles) + " |")
             print("|---|" + "---|" * len(profiles))
             for name in next(iter(profiles.values())):
