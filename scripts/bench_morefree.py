@@ -303,7 +303,8 @@ def main() -> None:
             print(f"| {setting} | ratio {best} / before | {float(np.median(rates[best])) / before:.2f}x | | | |")
         if args.profile:
             profiles = {variant: profile_steps(model, args.profile) for variant, model in models.items()}
-            print(f"\n{setting}: CPU ms per training step ({args.profile} profiled steps, torch.profiler; {describe_cpu()})\n")
+            cpu = describe_cpu()
+            print(f"\n{setting}: CPU ms per training step ({args.profile} profiled steps, torch.profiler; {cpu})\n")
             print("| part of the step | " + " | ".join(profiles) + " |")
             print("|---|" + "---|" * len(profiles))
             for name in next(iter(profiles.values())):
