@@ -532,6 +532,8 @@ def test_phase_clock_counts_each_timed_call_once_and_leaves_classes_as_it_found_
     with clock.timing_method(Child, "train", "train"):  # inherited: patched on the class, then removed again
         assert "train" in vars(Child) and "train" in vars(Agent)
     assert "train" not in vars(Child) and Child.train is Agent.train
+    with clock.timing_method(Evaluator, "train", "train"):  # no train (a tabular agent): nothing to time
+        assert not hasattr(Evaluator, "train")
     with pytest.raises(ValueError, match="phase must be one of"):
         clock.timed("learn", burn)
 

@@ -737,7 +737,13 @@ TRAIN_RATIO = {
     "GCRL/AntArena-v0": 2,
 }
 #: exploration alpha (env) and imagination alpha of each method: MoReFree (the env's default section) and its variants
-METHOD_ALPHAS = {"morefree": (0.2, 0.2), "peg": (0.0, 0.0), "wo_bf": (0.0, 0.2), "wo_imag": (0.2, 0.0)}
+METHOD_ALPHAS = {
+    "morefree": (0.2, 0.2),
+    "peg": (0.0, 0.0),
+    "wo_bf": (0.0, 0.2),
+    "wo_imag": (0.2, 0.0),
+    "own_goal": (0.2, 0.2),
+}
 
 
 def test_zoo_configs_cover_every_task_method_and_preset():
@@ -757,6 +763,7 @@ def test_zoo_configs_cover_every_task_method_and_preset():
             env_alpha, imagination_alpha = METHOD_ALPHAS[method]
             assert go_explore["sb3_gcrl.morefree.morefree_go_explore"]["alpha"] == env_alpha, where
             assert hyperparams.get("imagination_alpha", env_alpha) == imagination_alpha, where
+            assert hyperparams.get("own_goal_fraction", 0.0) == (0.3 if method == "own_goal" else 0.0), where
     cpu_tasks = ("GCRL/PointUMazeGoal-v0", "GCRL/Tabletop-v0")  # the CPU presets measured (docs/results.md)
     for task in TRAIN_RATIO:
         assert {(task, "morefree", "thesis"), (task, "peg", "thesis")} <= seen, task
@@ -767,8 +774,9 @@ def test_zoo_configs_cover_every_task_method_and_preset():
         "GCRL/FetchPickAndPlaceHard-v0",
         "GCRL/AntArena-v0",
     ):
-        assert {(task, m, "thesis") for m in METHOD_ALPHAS} <= seen, task
-    assert {("GCRL/PointUMazeGoal-v0", m, "cpu") for m in METHOD_ALPHAS} <= seen
+        assert {(task, m, "thesis") for m in METHOD_ALPHAS if m != "own_goal"} <= seen, task  # the thesis's ablations
+    assert {("GCRL/PointUMazeGoal-v0", m, preset) for m in METHOD_ALPHAS for preset in ("cpu", "thesis")} <= seen
+    assert {task for task, method, _ in seen if method == "own_goal"} == {"GCRL/PointUMazeGoal-v0"}
 
 
 @pytest.mark.parametrize("method", sorted(METHOD_ALPHAS))

@@ -58,9 +58,13 @@ class PhaseClock:
         """Time ``owner.name`` (a method, looked up through the class hierarchy) while the context lasts.
 
         :param owner: the class whose instances' calls are timed (e.g. ``type(model)``).
-        :param name: the method's name.
+        :param name: the method's name; a class without it has nothing to time (e.g. a tabular agent that learns
+            while it collects: all its time is ``collect``).
         :param phase: one of :data:`PHASES`.
         """
+        if not callable(getattr(owner, name, None)):
+            yield
+            return
         own = name in vars(owner)
         original = vars(owner)[name] if own else None
         setattr(owner, name, self.timed(phase, getattr(owner, name)))
