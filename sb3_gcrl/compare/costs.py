@@ -113,18 +113,26 @@ def callback_phase(callback: Any) -> str | None:
     return None
 
 
+def flat_callbacks(callbacks: list[Any]) -> Iterator[Any]:
+    """The callbacks of a run one by one, ``CallbackList``s opened (in order, depth first).
+
+    :param callbacks: the run's callbacks (RL-Zoo's ``exp_manager.callbacks``).
+    """
+    from stable_baselines3.common.callbacks import CallbackList
+
+    for callback in callbacks:
+        if isinstance(callback, CallbackList):
+            yield from flat_callbacks(callback.callbacks)
+        else:
+            yield callback
+
+
 def time_callbacks(clock: PhaseClock, callbacks: list[Any]) -> None:
     """Time every evaluation, probe and checkpoint callback among ``callbacks`` (``CallbackList``s searched).
 
     :param clock: the run's clock.
     :param callbacks: the run's callbacks (RL-Zoo's ``exp_manager.callbacks``).
     """
-    from stable_baselines3.common.callbacks import CallbackList
-
-    pending = list(callbacks)
-    while pending:
-        callback = pending.pop(0)
-        if isinstance(callback, CallbackList):
-            pending[:0] = callback.callbacks
-        elif (phase := callback_phase(callback)) is not None:
+    for callback in flat_callbacks(callbacks):
+        if (phase := callback_phase(callback)) is not None:
             clock.time_callback(callback, phase)

@@ -162,18 +162,10 @@ def all_goals_callback(callbacks: list[Any], eval_freq: int) -> Any | None:
     :return: the callback, or None when there is none.
     :raises ValueError: more than one (their rows would compete for one ``all_goals.csv``).
     """
-    from stable_baselines3.common.callbacks import CallbackList
-
+    from sb3_gcrl.compare.costs import flat_callbacks
     from sb3_gcrl.post_exploration import AllGoalsEvalCallback
 
-    found: list[AllGoalsEvalCallback] = []
-    pending = list(callbacks)
-    while pending:
-        callback = pending.pop(0)
-        if isinstance(callback, CallbackList):
-            pending[:0] = callback.callbacks
-        elif isinstance(callback, AllGoalsEvalCallback):
-            found.append(callback)
+    found = [callback for callback in flat_callbacks(callbacks) if isinstance(callback, AllGoalsEvalCallback)]
     if len(found) > 1:
         raise ValueError(f"The config lists {len(found)} AllGoalsEvalCallback callbacks; keep one")
     if not found:
