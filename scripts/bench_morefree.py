@@ -14,7 +14,10 @@ For each, the train steps/s (median over ``--repeats``, wall and process CPU tim
 the compiled one (``compiled``: ``compile_train_step``) and the compiled bfloat16 one (``compiled-bf16``: also
 ``mixed_precision``). Where both imagine from every posterior state (``cpu-full``, ``thesis``), sheeprl's DreamerV3
 train step at the same sizes (``scripts/bench_sheeprl_dreamer.py``, run with ``--sheeprl-python``, the interpreter
-of a venv holding sheeprl; skipped without it) is timed in the same run, alternating with ours. sheeprl's latent is
+of a venv holding sheeprl; skipped without it) is timed in the same run, alternating with ours, at each of its own
+speed settings (``--sheeprl-variants``: ``eager`` float32, sheeprl's default; ``compiled``, its
+``algo.compile.enabled``; ``bf16``, its ``fabric.precision=bf16-mixed``; ``compiled-bf16``, both), and the table
+gives our fastest step against each (the best of sheeprl's marked). sheeprl's latent is
 ``stoch`` categoricals of one class (as wide as our Gaussian latent, so the matrix products match; it carries no
 information, which does not change the time), its MLPs all ``head_hidden`` wide with ``head_layers`` layers. Our
 step does more than sheeprl's: two actor-critics (pi_G and pi_E), the distance and the Plan2Explore ensemble
@@ -118,6 +121,13 @@ VARIANTS = {
     "compiled-bf16": {"compile_train_step": True, "mixed_precision": True},
 }
 SHEEPRL_SCRIPT = Path(__file__).resolve().parent / "bench_sheeprl_dreamer.py"
+# sheeprl's own speed settings, as a sheeprl user turns them on: fabric.precision and algo.compile.enabled
+SHEEPRL_VARIANTS = {
+    "eager": ["--precision=32-true"],
+    "compiled": ["--precision=32-true", "--compile"],
+    "bf16": ["--precision=bf16-mixed"],
+    "compiled-bf16": ["--precision=bf16-mixed", "--compile"],
+}
 
 
 def make_env(env: gym.Env) -> gym.Env:
@@ -194,8 +204,9 @@ def profile_steps(model: MoReFree, steps: int) -> dict[str, float]:
     return {name: value / 1000 / steps for name, value in per_step.items()}
 
 
-def sheeprl_step(python: str, setting: str, steps: int) -> float | None:
-    """sheeprl's DreamerV3 train steps/s at the sizes of ``setting`` (one repeat), or None if it failed."""
+def sheeprl_step(python: str, setting: str, steps: int, variant: str) -> float | None:
+    """sheeprl's DreamerV3 train steps/s at the sizes of ``setting`` with its settings ``variant`` (one repeat, in a
+    fresh process: a compiled variant compiles in its warm-up steps), or None if it failed."""
     network, algo, _ = SETTINGS[setting]
     batch = algo["batch_size"]
     # every posterior state starts an imagination in sheeprl: its full volume is batch x length starts
@@ -211,12 +222,13 @@ def sheeprl_step(python: str, setting: str, steps: int) -> float | None:
         f"--length={algo['batch_length']}",
         f"--steps={steps}",
         "--repeats=1",
-        "--warmup=2",
+        "--warmup=3",
+        *SHEEPRL_VARIANTS[variant],
     ]
     result = subprocess.run(command, capture_output=True, text=True, env=dict(os.environ), check=False)
     match = re.search(r"SHEEPRL_TRAIN_STEPS_PER_S\s+([0-9.eE+-]+)", result.stdout)
     if match is None:
-        print(f"sheeprl failed for {setting}: {result.stderr[-500:]}", file=sys.stderr)
+        print(f"sheeprl ({variant}) failed for {setting}: {result.stderr[-500:]}", file=sys.stderr)
         return None
     return float(match.group(1))
 
@@ -248,6 +260,14 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="repeats; medians are reported")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--sheeprl-python", help="python of a venv with sheeprl 0.8.4 (the DreamerV3 reference)")
+    parser.add_argument(
+        "--sheeprl-variants",
+        nargs="*",
+        default=list(SHEEPRL_VARIANTS),
+        choices=list(SHEEPRL_VARIANTS),
+        help="sheeprl's settings to time: float32 or bf16-mixed (fabric.precision), eager or compiled "
+        "(algo.compile.enabled)",
+    )
     parser.add_argument("--collect", action="store_true", help="also time data collection (CPU preset)")
     parser.add_argument("--before", help="a checkout of commit ec97e36, timed beside the 'before' setting")
     parser.add_argument("--profile", type=int, default=0, help="then profile this many steps of each (0: none)")
@@ -266,7 +286,8 @@ def main() -> None:
             models[variant] = build(setting, variant, args.device)
             models[variant].train()  # the first step compiles
             setup[variant] = time.perf_counter() - start
-        rates: dict[str, list[float]] = {name: [] for name in [*args.variants, "sheeprl", "before"]}
+        sheeprl_names = [f"sheeprl {variant}" for variant in args.sheeprl_variants]
+        rates: dict[str, list[float]] = {name: [] for name in [*args.variants, *sheeprl_names, "before"]}
         cpu_per_step: dict[str, list[float]] = {name: [] for name in [*args.variants, "before"]}
         for _ in range(args.repeats):  # alternate: every repeat times every step once
             for variant, model in models.items():
@@ -274,9 +295,10 @@ def main() -> None:
                 rates[variant].append(1 / wall)
                 cpu_per_step[variant].append(cpu)
             if args.sheeprl_python and SETTINGS[setting][1]["imagination_starts"] is None:  # equal volume only
-                rate = sheeprl_step(args.sheeprl_python, setting, steps)
-                if rate is not None:
-                    rates["sheeprl"].append(rate)
+                for variant in args.sheeprl_variants:
+                    rate = sheeprl_step(args.sheeprl_python, setting, steps, variant)
+                    if rate is not None:
+                        rates[f"sheeprl {variant}"].append(rate)
             if args.before and setting == "before":
                 timing = before_step(args.before, steps)
                 if timing is not None:
@@ -287,16 +309,20 @@ def main() -> None:
                 continue
             cpu = f"{np.median(cpu_per_step[name]):.3f}" if name in cpu_per_step else "(sheeprl's own timing)"
             built = f"{setup[name]:.0f}" if name in setup else "-"
-            label = {"sheeprl": "sheeprl DreamerV3", "before": "before the rebuild (ec97e36)"}.get(name, name)
+            label = {"before": "before the rebuild (ec97e36)"}.get(name, name.replace("sheeprl", "sheeprl DreamerV3"))
             print(
                 f"| {setting} | {label} | {np.median(runs):.3g} | {cpu} | {built} | "
                 f"{', '.join(f'{r:.3g}' for r in runs)} |",
                 flush=True,
             )
-        if rates["sheeprl"]:
-            sheeprl = float(np.median(rates["sheeprl"]))
+        timed_sheeprl = [name for name in sheeprl_names if rates[name]]
+        if timed_sheeprl:
             best = max(args.variants, key=lambda v: float(np.median(rates[v])))
-            print(f"| {setting} | ratio {best} / sheeprl | {float(np.median(rates[best])) / sheeprl:.2f}x | | | |")
+            sheeprl_best = max(timed_sheeprl, key=lambda v: float(np.median(rates[v])))
+            for name in timed_sheeprl:
+                ratio = float(np.median(rates[best])) / float(np.median(rates[name]))
+                mark = " (sheeprl's best)" if name == sheeprl_best else ""
+                print(f"| {setting} | ratio ours {best} / {name}{mark} | {ratio:.2f}x | | | |")
         if rates["before"]:
             before = float(np.median(rates["before"]))
             best = max(args.variants, key=lambda v: float(np.median(rates[v])))

@@ -31,11 +31,18 @@ timed (the batches are made beforehand). The metrics aggregation of a logged she
 off by default (``MetricAggregator.disabled``, which also skips the posterior/prior entropy metrics); ``--with-metrics``
 turns it on.
 
-Settings: ``torch.set_num_threads(1)`` (as sheeprl's ``num_threads: 1``) and one inter-op thread, float32
-(``fabric.precision=32-true``), ``float32_matmul_precision("high")`` and distributions without argument validation,
-as sheeprl's command line sets them. sheeprl has a ``torch.compile`` option (``algo.compile.enabled``, with
-``algo.compile.mode=reduce-overhead`` for CUDA graphs); it is forced off here (``algo.compile.enabled=False``), so the
-step runs eagerly. Adam keeps sheeprl's ``fused: True`` (supported on CPU by recent PyTorch).
+Settings: ``torch.set_num_threads(1)`` (as sheeprl's ``num_threads: 1``) and one inter-op thread,
+``float32_matmul_precision("high")`` and distributions without argument validation, as sheeprl's command line sets
+them. The two settings a sheeprl user can turn on for speed are options here:
+
+* ``--precision``: ``fabric.precision``, ``32-true`` (sheeprl's default) or ``bf16-mixed`` (Lightning's bfloat16
+  autocast);
+* ``--compile``: ``algo.compile.enabled=True``, sheeprl's ``torch.compile`` of its losses (the world-model loss, the
+  imagination, the actor and critic losses; ``sheeprl.utils.compile.compiled``) in its configured mode
+  (``algo.compile.mode=reduce-overhead``: CUDA graphs, which on a CPU compile as the default mode). Off by default,
+  as in sheeprl: the step then runs eagerly. The first warm-up step compiles.
+
+Adam keeps sheeprl's ``fused: True`` (supported on CPU by recent PyTorch).
 
 Venv (separate from the project's: it must not import sb3_gcrl), the commands that worked::
 
@@ -103,6 +110,10 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--warmup", type=int, default=2, help="untimed train steps first")
     parser.add_argument("--seed", type=int, default=42)
     parser.add_argument(
+        "--precision", default="32-true", choices=["32-true", "bf16-mixed"], help="fabric.precision (sheeprl's setting)"
+    )
+    parser.add_argument("--compile", action="store_true", help="algo.compile.enabled=True (sheeprl's torch.compile)")
+    parser.add_argument(
         "--with-metrics", action="store_true", help="aggregate sheeprl's training metrics, as a logged run does"
     )
     return parser.parse_args()
@@ -120,7 +131,7 @@ def compose_config(args: argparse.Namespace) -> dotdict:
         f"algo.mlp_keys.encoder=[{OBS_KEY}]",
         f"algo.mlp_keys.decoder=[{OBS_KEY}]",
         "algo.total_steps=1",
-        "algo.compile.enabled=False",
+        f"algo.compile.enabled={args.compile}",
         f"algo.per_rank_batch_size={args.batch}",
         f"algo.per_rank_sequence_length={args.length}",
         f"algo.horizon={args.horizon}",
@@ -134,7 +145,7 @@ def compose_config(args: argparse.Namespace) -> dotdict:
         "fabric.accelerator=cpu",
         "fabric.devices=1",
         "fabric.strategy=auto",
-        "fabric.precision=32-true",
+        f"fabric.precision={args.precision}",
         f"metric.log_level={1 if args.with_metrics else 0}",
         "model_manager.disabled=True",
         f"seed={args.seed}",
@@ -264,6 +275,8 @@ def main() -> None:
         "repeats": args.repeats,
         "warmup": args.warmup,
         "with_metrics": args.with_metrics,
+        "precision": args.precision,
+        "compile": args.compile,
         "threads": torch.get_num_threads(),
         "torch": torch.__version__,
         "sheeprl": sheeprl.__version__,
