@@ -20,8 +20,8 @@ from torch.nn import functional as F
 
 import sb3_gcrl
 from sb3_gcrl import EMAC
-from sb3_gcrl.common.episodic_control import MemoryRestoreError
 from sb3_gcrl.emac import EMACMemory
+from sb3_gcrl.memory.serialization import MemoryRestoreError
 
 TINY = {"net_arch": [8]}
 GAMMA = 0.9

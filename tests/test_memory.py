@@ -431,7 +431,7 @@ def _widen_keys(state):
 @pytest.mark.parametrize("algo", [CEC, MFEC])
 def test_load_surfaces_the_memorys_own_error(algo, corrupt, match, tmp_path):
     """A memory that cannot be restored fails with its own error, not SB3's KeyError: 'policy.optimizer'."""
-    from sb3_gcrl.common.episodic_control import MemoryRestoreError
+    from sb3_gcrl.memory.serialization import MemoryRestoreError
 
     model = _make(algo, seed=0)
     model.learn(200, log_interval=None)

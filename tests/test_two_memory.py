@@ -654,7 +654,7 @@ def test_save_load_keeps_the_schedule_and_its_state(spec, tmp_path):
 
 
 def test_episode_recorder_hands_over_finished_episodes():
-    from sb3_gcrl.common.episodes import EpisodeRecorder
+    from sb3_gcrl.memory.episode import EpisodeRecorder
 
     recorder = EpisodeRecorder()
     steps = [([0, 10], [1, 0], [1.0, 2.0], [False, False]), ([1, 11], [0, 1], [0.0, 3.0], [True, False]),

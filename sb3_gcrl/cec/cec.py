@@ -11,7 +11,7 @@ from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_gcrl.cec.policies import CECPolicy
 from sb3_gcrl.common.arguments import constructor_defaults
-from sb3_gcrl.common.episodic_control import EpisodicControlAlgorithm
+from sb3_gcrl.episodic_control.algorithm import EpisodicControlAlgorithm
 
 #: the memory settings' defaults, stated by the policy
 _MEMORY = constructor_defaults(CECPolicy)
@@ -49,9 +49,9 @@ class CEC(EpisodicControlAlgorithm):
         keeps epsilon fixed and does not give it; the authors' code decays it linearly 0.9 -> 0.05.
     :param projection_dim: Gaussian random projection of the key to this many dims (thesis: 8 for
         FetchReach), ``None`` for the raw (concatenated) observation.
-    :param kwargs: the other :class:`~sb3_gcrl.common.EpisodicControlAlgorithm` arguments (``gamma``: discount of
-        the Monte-Carlo returns of Algorithm 1, ``observation_keys``, ``knn_backend``, ``rebuild_threshold``,
-        ``policy_kwargs``, ``seed``, ``verbose``, ...).
+    :param kwargs: the other :class:`~sb3_gcrl.episodic_control.EpisodicControlAlgorithm` arguments (``gamma``:
+        discount of the Monte-Carlo returns of Algorithm 1, ``observation_keys``, ``knn_backend``,
+        ``rebuild_threshold``, ``policy_kwargs``, ``seed``, ``verbose``, ...).
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {

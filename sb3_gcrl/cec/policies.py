@@ -7,10 +7,10 @@ from typing import Any, ClassVar
 import numpy as np
 from gymnasium import spaces
 
-from sb3_gcrl.common.actors import cec_actions
-from sb3_gcrl.common.episodic_control import EpisodicControlPolicy
 from sb3_gcrl.common.saving import refuse_learning_rate_schedule
 from sb3_gcrl.common.validation import check_float
+from sb3_gcrl.episodic_control.policies import EpisodicControlPolicy
+from sb3_gcrl.memory.actors import cec_actions
 from sb3_gcrl.memory.cec_memory import CECMemory
 
 
@@ -36,7 +36,7 @@ class CECPolicy(EpisodicControlPolicy):
     The defaults of the memory settings are those of :class:`~sb3_gcrl.cec.CEC` (the PointUMaze row of Table 4.4),
     which reads them here.
 
-    :param kwargs: the :class:`~sb3_gcrl.common.EpisodicControlPolicy` arguments (``projection_dim``,
+    :param kwargs: the :class:`~sb3_gcrl.episodic_control.EpisodicControlPolicy` arguments (``projection_dim``,
         ``observation_keys``, ``seed``, ``knn_backend``, ``rebuild_threshold``).
     :raises TypeError: naming ``CEC.load`` when SB3's own ``load`` (``SAC.load``) builds this policy from a CEC
         model file (it passes a learning-rate schedule third).
@@ -83,7 +83,7 @@ class CECPolicy(EpisodicControlPolicy):
 
     def act(self, keys: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Actions ``(n, *action_shape)`` for keys ``(n, key_dim)`` and the mask of memory hits
-        (:func:`~sb3_gcrl.common.actors.cec_actions`)."""
+        (:func:`~sb3_gcrl.memory.actors.cec_actions`)."""
         actions, found = cec_actions(
             self.memory, keys, self._low, self._high, self.rng, deterministic, self.exploration_rate, self.noise_std
         )

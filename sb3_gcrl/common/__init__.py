@@ -1,23 +1,19 @@
-"""Building blocks shared across the package: the base classes of the episodic-control algorithms (CEC, MFEC)
-and the 2M agents, model files, argument checks and exploration metrics.
+"""Building blocks shared across the package: model files, argument checks, seeded generators, run helpers, metrics.
 
-* :mod:`sb3_gcrl.common.episodic_control` — :class:`EpisodicControlPolicy`, :class:`EpisodicControlAlgorithm`
-  (SB3 base classes of CEC and MFEC), :func:`memory_state` / :func:`load_memory_state` (an episodic memory in a
-  policy's ``state_dict``) and :class:`MemoryRestoreError`.
-* :mod:`sb3_gcrl.common.actors` — :func:`cec_actions`, :func:`mfec_actions`: how a memory picks actions.
+The lowest layer: nothing here imports another subpackage of ``sb3_gcrl`` (see ``docs/architecture.md``).
+
 * :mod:`sb3_gcrl.common.saving` — :class:`ModelFileMixin` (every algorithm of the package: atomic ``save`` that
   records the class, ``load`` that checks the file first and raises :class:`ModelFileError` naming the fix) and
   the atomic writes (:func:`atomic_file`).
-
 * :mod:`sb3_gcrl.common.validation` — the package's argument checks (``check_int``, ``check_float``, ...).
 * :mod:`sb3_gcrl.common.seeding` — the package's own random draws: generators seeded from SB3's seed
   (:class:`~sb3_gcrl.common.seeding.SeededGeneratorMixin`), never numpy's global one.
 * :mod:`sb3_gcrl.common.arguments` — settings an algorithm hands to its policy, their defaults stated once.
-* :mod:`sb3_gcrl.common.episodes` — the running episodes of each env, handed over when they end.
 * :mod:`sb3_gcrl.common.metrics` — exploration metrics of Ch. 6 (:func:`visitation_entropy`, :func:`coverage`).
 
-The memories themselves (data structures) are in :mod:`sb3_gcrl.memory`. The names above are imported on first
-access, so that the light modules import without torch.
+The episodic memories, their actors, episodes and saved states are in :mod:`sb3_gcrl.memory`; the SB3 base classes
+of CEC and MFEC in :mod:`sb3_gcrl.episodic_control`. The names above are imported on first access, so that the
+light modules import without torch.
 """
 
 from __future__ import annotations
@@ -28,13 +24,6 @@ from typing import Any
 #: exported name -> the module that defines it, imported on first access: the light modules (validation,
 #: metrics) are used by the envs, which ``import sb3_gcrl`` registers without importing torch
 _EXPORTS: dict[str, str] = {
-    "EpisodicControlAlgorithm": "episodic_control",
-    "EpisodicControlPolicy": "episodic_control",
-    "MemoryRestoreError": "episodic_control",
-    "load_memory_state": "episodic_control",
-    "memory_state": "episodic_control",
-    "cec_actions": "actors",
-    "mfec_actions": "actors",
     "ModelFileError": "saving",
     "ModelFileMixin": "saving",
     "atomic_file": "saving",

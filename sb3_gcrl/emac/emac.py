@@ -17,7 +17,6 @@ from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 from torch.nn import functional as F
 
-from sb3_gcrl.common.episodes import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.validation import (
@@ -30,6 +29,7 @@ from sb3_gcrl.common.validation import (
 )
 from sb3_gcrl.emac.memory import NEIGHBOUR_WEIGHTINGS, NeighbourWeighting
 from sb3_gcrl.emac.policies import EMACPolicy, MultiInputEMACPolicy
+from sb3_gcrl.memory.episode import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.memory.knn import KNN_BACKENDS, KNNBackend
 
 
@@ -44,7 +44,7 @@ class EMAC(EpisodeRecordingMixin, ModelFileMixin, ClassNamedRunsMixin, FiniteRew
     discounted Monte-Carlo return) pairs, weighted by softmin of their distance (authors' code; ``"uniform"``: plain
     mean); see :mod:`sb3_gcrl.emac.memory`. Every finished episode writes each of its steps into the memory, with the
     return discounted by ``gamma``, through the package's episode layer
-    (:class:`~sb3_gcrl.common.episodes.EpisodeRecorder`). While the memory is still empty the critic loss is the plain
+    (:class:`~sb3_gcrl.memory.episode.EpisodeRecorder`). While the memory is still empty the critic loss is the plain
     TD loss. The actor is DDPG's (maximise ``Q_1(s, mu(s))``); acting and ``predict`` use the actor only.
 
     Base algorithm: the paper builds EMAC on DDPG (thesis Sec. 4.3: "EMAC combines values from the EM with 1-step TD

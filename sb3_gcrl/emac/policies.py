@@ -17,10 +17,10 @@ from stable_baselines3.common.torch_layers import CombinedExtractor
 from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.td3.policies import TD3Policy
 
-from sb3_gcrl.common.episodic_control import load_memory_state, memory_state
 from sb3_gcrl.common.validation import check_int, check_optional_int
 from sb3_gcrl.emac.memory import EMACMemory, NeighbourWeighting, StateActionEmbedding
 from sb3_gcrl.memory.knn import KNNBackend
+from sb3_gcrl.memory.serialization import load_memory_state, memory_state
 
 
 class EMACPolicy(TD3Policy):
@@ -119,7 +119,7 @@ class EMACPolicy(TD3Policy):
         """Restore what :meth:`get_extra_state` returned.
 
         :raises MemoryRestoreError: if the saved memory cannot be restored (see
-            :func:`~sb3_gcrl.common.episodic_control.load_memory_state`).
+            :func:`~sb3_gcrl.memory.serialization.load_memory_state`).
         """
         load_memory_state(self, self.memory, self.memory_embedding, state)
 

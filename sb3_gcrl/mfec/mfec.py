@@ -10,7 +10,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_gcrl.common.arguments import constructor_defaults
-from sb3_gcrl.common.episodic_control import EpisodicControlAlgorithm
+from sb3_gcrl.episodic_control.algorithm import EpisodicControlAlgorithm
 from sb3_gcrl.mfec.policies import MFECPolicy
 
 #: the memory settings' defaults, stated by the policy
@@ -38,9 +38,9 @@ class MFEC(EpisodicControlAlgorithm):
     :param exploration_fraction: fraction of the budget over which epsilon decays linearly.
     :param projection_dim: Gaussian random projection dimension, ``None`` for raw observations
         (fine for small tabular/discrete observations such as WindyGrid).
-    :param kwargs: the other :class:`~sb3_gcrl.common.EpisodicControlAlgorithm` arguments (``gamma``: discount of
-        the Monte-Carlo returns, ``observation_keys``, ``knn_backend``, ``rebuild_threshold``, ``policy_kwargs``,
-        ``seed``, ``verbose``, ...).
+    :param kwargs: the other :class:`~sb3_gcrl.episodic_control.EpisodicControlAlgorithm` arguments (``gamma``:
+        discount of the Monte-Carlo returns, ``observation_keys``, ``knn_backend``, ``rebuild_threshold``,
+        ``policy_kwargs``, ``seed``, ``verbose``, ...).
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {

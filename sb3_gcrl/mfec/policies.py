@@ -7,9 +7,9 @@ from typing import Any, ClassVar
 import numpy as np
 from gymnasium import spaces
 
-from sb3_gcrl.common.actors import mfec_actions
-from sb3_gcrl.common.episodic_control import EpisodicControlPolicy
 from sb3_gcrl.common.saving import refuse_learning_rate_schedule
+from sb3_gcrl.episodic_control.policies import EpisodicControlPolicy
+from sb3_gcrl.memory.actors import mfec_actions
 from sb3_gcrl.memory.mfec_memory import MFECMemory
 
 
@@ -28,7 +28,7 @@ class MFECPolicy(EpisodicControlPolicy):
 
     The defaults of the memory settings are those of :class:`~sb3_gcrl.mfec.MFEC`, which reads them here.
 
-    :param kwargs: the :class:`~sb3_gcrl.common.EpisodicControlPolicy` arguments (``projection_dim``,
+    :param kwargs: the :class:`~sb3_gcrl.episodic_control.EpisodicControlPolicy` arguments (``projection_dim``,
         ``observation_keys``, ``seed``, ``knn_backend``, ``rebuild_threshold``).
     :raises TypeError: naming ``MFEC.load`` when SB3's own ``load`` (``SAC.load``) builds this policy from a MFEC
         model file (it passes a learning-rate schedule third).
@@ -64,7 +64,7 @@ class MFECPolicy(EpisodicControlPolicy):
 
     def act(self, keys: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Actions ``(n,)`` and the mask of queries whose chosen action had a finite estimate
-        (:func:`~sb3_gcrl.common.actors.mfec_actions`)."""
+        (:func:`~sb3_gcrl.memory.actors.mfec_actions`)."""
         actions, known = mfec_actions(self.memory, keys, self.rng, deterministic, self.exploration_rate)
         return actions + self.action_start, known
 

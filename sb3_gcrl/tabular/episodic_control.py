@@ -8,8 +8,8 @@ import numpy as np
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 
-from sb3_gcrl.common.episodes import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.common.validation import check_bool, check_unit_interval
+from sb3_gcrl.memory.episode import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.tabular.policies import TabularECPolicy
 from sb3_gcrl.tabular.tabular_algorithm import TabularAlgorithm
 

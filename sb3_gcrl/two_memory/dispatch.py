@@ -36,11 +36,11 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.policies import BasePolicy
 
 from sb3_gcrl.common.arguments import settings_among
-from sb3_gcrl.common.episodes import EpisodeRecorder, truncated_ends
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.seeding import SeededGeneratorMixin, seeded_generator
 from sb3_gcrl.common.validation import FiniteRewardsMixin, check_bool, check_unit_interval
+from sb3_gcrl.memory.episode import EpisodeRecorder, truncated_ends
 from sb3_gcrl.two_memory.buffers import SourceTaggedReplayBuffer
 from sb3_gcrl.two_memory.schedules import (
     DEFAULT_P_EC_SCHEDULE,

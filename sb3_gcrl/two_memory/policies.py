@@ -2,7 +2,7 @@
 
 The dispatch (which memory acts per episode and env, score windows, evaluation memory of Eq. 5.6) comes from
 :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryDispatchMixin`; the memories come from :mod:`sb3_gcrl.memory` and act
-as in standalone CEC / MFEC (:mod:`sb3_gcrl.common.actors`).
+as in standalone CEC / MFEC (:mod:`sb3_gcrl.memory.actors`).
 Everything is in the policy's ``state_dict`` (the episodic table through ``get_extra_state``, used rows only), so
 ``save``/``load`` restore the table, the network and the score windows exactly.
 """
@@ -20,11 +20,11 @@ from stable_baselines3.dqn.policies import DQNPolicy
 from stable_baselines3.sac.policies import SACPolicy
 from torch import nn
 
-from sb3_gcrl.common.actors import cec_actions, mfec_actions
-from sb3_gcrl.common.episodic_control import load_memory_state, memory_state
 from sb3_gcrl.common.seeding import draw_seed, generator_state, restore_generator, seeded_generator
 from sb3_gcrl.common.validation import check_float
 from sb3_gcrl.memory import CECMemory, KeyEmbedding, MFECMemory
+from sb3_gcrl.memory.actors import cec_actions, mfec_actions
+from sb3_gcrl.memory.serialization import load_memory_state, memory_state
 from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatchMixin
 
 
@@ -125,7 +125,7 @@ class TwoMemoryDQNPolicy(KeyedMemoryDispatchMixin, DQNPolicy):
     """2M policy for discrete actions: an MFEC table (2M-EC) and a DQN Q-network (2M-RL), thesis Ch. 5.
 
     MFEC keys are a seeded Gaussian random projection of the flattened observation (8 dims in the authors' code).
-    MFEC acts greedily (:func:`~sb3_gcrl.common.actors.mfec_actions`, untried actions first, ties broken at random
+    MFEC acts greedily (:func:`~sb3_gcrl.memory.actors.mfec_actions`, untried actions first, ties broken at random
     while training); epsilon-greedy exploration is drawn per env by the algorithm, on both memories.
 
     :param observation_space: observation space.
@@ -215,7 +215,7 @@ class TwoMemorySACPolicy(KeyedMemoryDispatchMixin, SACPolicy):
 
     Not in the thesis: 2M with CEC and SAC is this package's extension of Ch. 5 to continuous actions. CEC stores
     actions scaled to [-1, 1] (the space the SAC actor and the replay buffer use) and acts as standalone CEC does
-    (:func:`~sb3_gcrl.common.actors.cec_actions`, thesis Algorithm 1): while training, the Eq. 4.5 sample plus
+    (:func:`~sb3_gcrl.memory.actors.cec_actions`, thesis Algorithm 1): while training, the Eq. 4.5 sample plus
     Gaussian noise of std ``ec_noise_std`` with probability ``ec_epsilon``, or a uniformly random action when no
     stored state lies within n*d; evaluation (``deterministic=True``) takes the nearest row's action, and an empty
     memory answers the middle of the action space, so deterministic predictions never draw random numbers.

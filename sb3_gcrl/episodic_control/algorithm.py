@@ -1,12 +1,8 @@
-"""Base classes of the episodic-control algorithms (CEC, MFEC): policy base, learn loop, memory save/restore.
+"""Learn loop of the episodic-control algorithms (CEC, MFEC): act with the memory, update it after every episode.
 
-An episodic-control agent has no network and no gradient step: the policy *is* the memory. So the
-policy is a :class:`~stable_baselines3.common.policies.BasePolicy` without parameters that holds the
-memory and a :class:`~sb3_gcrl.memory.embedding.KeyEmbedding`, works on numpy end to end (no
-tensor round trip per step), and puts the memory into its ``state_dict`` through
-``get_extra_state`` (used rows only, as tensors), so ``save``/``load`` restore it exactly inside the
-usual ``policy.pth`` of the SB3 zip. The algorithm collects steps with all envs at once and updates
-the memory from each finished episode's discounted returns (thesis Algorithm 1).
+The algorithm collects steps with all envs at once and updates the memory of its
+:class:`~sb3_gcrl.episodic_control.policies.EpisodicControlPolicy` from each finished episode's discounted returns
+(thesis Algorithm 1); there is no replay buffer and no gradient step.
 """
 
 from __future__ import annotations
@@ -18,7 +14,7 @@ import time
 import warnings
 from abc import abstractmethod
 from collections.abc import Sequence
-from typing import Any, ClassVar, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 import torch as th
@@ -30,193 +26,13 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import LinearSchedule, safe_mean
 
 from sb3_gcrl.common.arguments import settings_among
-from sb3_gcrl.common.episodes import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.common.saving import ModelFileMixin
-from sb3_gcrl.common.seeding import generator_state, restore_generator
 from sb3_gcrl.common.validation import check_choice, check_finite_rewards, check_float, check_int, check_optional_int
-from sb3_gcrl.memory.embedding import KeyEmbedding
+from sb3_gcrl.episodic_control.policies import EpisodicControlPolicy
+from sb3_gcrl.memory.episode import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.memory.knn import KNN_BACKENDS, KNNBackend
 
 SelfEpisodicControlAlgorithm = TypeVar("SelfEpisodicControlAlgorithm", bound="EpisodicControlAlgorithm")
-
-
-def memory_state(memory: Any, embedding: KeyEmbedding) -> dict[str, th.Tensor]:
-    """An episodic memory (used rows only) and its key embedding as tensors, for a policy's ``get_extra_state``.
-
-    :param memory: the memory (``CECMemory``, ``MFECMemory``: anything with ``state_dict()``).
-    :param embedding: the observation -> key embedding (its projection matrix).
-    :return: ``{"memory/<name>": tensor, "embedding/<name>": tensor}``.
-    """
-    state = {f"memory/{k}": th.as_tensor(np.asarray(v).copy()) for k, v in memory.state_dict().items()}
-    state.update({f"embedding/{k}": th.as_tensor(np.asarray(v).copy()) for k, v in embedding.get_state().items()})
-    return state
-
-
-def _unprefixed(state: dict[str, th.Tensor], prefix: str) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in state.items():
-        if key.startswith(prefix):
-            array = value.cpu().numpy()
-            out[key[len(prefix) :]] = array.item() if array.ndim == 0 else array  # e.g. the recency clock
-    return out
-
-
-def load_memory_state(owner: Any, memory: Any, embedding: KeyEmbedding, state: dict[str, th.Tensor]) -> None:
-    """Restore what :func:`memory_state` returned, in place.
-
-    :param owner: the policy being restored (named in the error).
-    :param memory: the memory to restore (``load_state_dict``).
-    :param embedding: the key embedding to restore (``set_state``).
-    :param state: the tensors of :func:`memory_state`.
-    :raises MemoryRestoreError: if the saved memory or projection cannot be restored; the memory's own error (what
-        is missing, mis-shaped or corrupted) is in the message and is the ``__cause__``.
-    """
-    try:
-        embedding.set_state(_unprefixed(state, "embedding/"))
-        memory.load_state_dict(_unprefixed(state, "memory/"))
-    except (ValueError, TypeError, KeyError, AttributeError) as error:
-        raise MemoryRestoreError(
-            f"The saved episodic memory cannot be restored into this {type(owner).__name__}: {error}"
-        ) from error
-
-
-class MemoryRestoreError(RuntimeError):
-    """A saved episodic memory cannot be restored (corrupted file, or memory settings that do not fit it).
-
-    A ``RuntimeError`` on purpose: SB3's ``BaseAlgorithm.load`` re-raises a ``RuntimeError`` from
-    ``set_parameters`` unchanged, whereas it treats a ``ValueError`` as an old DQN optimizer state and then
-    fails with an unrelated ``KeyError: 'policy.optimizer'``. The memory's own error is the ``__cause__``.
-    """
-
-
-class EpisodicControlPolicy(BasePolicy):
-    """Base policy holding an episodic memory and the observation -> key embedding.
-
-    Subclasses create ``self.memory`` (with ``state_dict``/``load_state_dict``/``__len__``), implement :meth:`act`
-    and list the constructor arguments of their memory settings in :attr:`memory_parameters` (saved by
-    ``policy.save``, handed on by :class:`EpisodicControlAlgorithm`).
-
-    :param observation_space: observation space (Box, Discrete, MultiBinary or Dict of those).
-    :param action_space: action space.
-    :param projection_dim: random-projection dimension of the keys, ``None`` for raw observations.
-    :param observation_keys: Dict observation keys used for the key, in order (default
-        ``("observation", "desired_goal")`` for goal envs).
-    :param seed: seed of the projection matrix and of the policy's action-sampling generator.
-    :param knn_backend: kNN backend of the memory (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
-    :param rebuild_threshold: KD-tree rebuild threshold of the memory (``None``: automatic).
-    """
-
-    #: constructor arguments of the memory settings, each an attribute of the same name of the memory (or of the
-    #: policy, for the policy's own settings such as CEC's exploration noise)
-    memory_parameters: ClassVar[tuple[str, ...]] = ()
-
-    def __init__(
-        self,
-        observation_space: spaces.Space,
-        action_space: spaces.Space,
-        projection_dim: int | None = None,
-        observation_keys: Sequence[str] | None = None,
-        seed: int | None = None,
-        knn_backend: KNNBackend = "auto",
-        rebuild_threshold: int | None = None,
-    ) -> None:
-        super().__init__(observation_space, action_space)
-        self.projection_dim = projection_dim
-        self.observation_keys = None if observation_keys is None else tuple(observation_keys)
-        self.seed = seed
-        self.knn_backend = knn_backend
-        self.rebuild_threshold = check_optional_int("rebuild_threshold", rebuild_threshold)
-        self.embedding = KeyEmbedding(observation_space, projection_dim, seed, self.observation_keys)
-        self.rng = np.random.default_rng(seed)
-        #: probability of exploring (epsilon), set by the algorithm's schedule during training
-        self.exploration_rate = 0.0
-
-    def memory_settings(self) -> dict[str, Any]:
-        """The memory settings as the policy uses them (checked and converted), by constructor argument name."""
-        return {
-            name: getattr(self.memory if hasattr(self.memory, name) else self, name) for name in self.memory_parameters
-        }
-
-    def set_seed(self, seed: int | None) -> None:
-        """Reseed the action-sampling generator (the projection matrix stays as it is)."""
-        self.rng = np.random.default_rng(seed)
-
-    @abstractmethod
-    def act(self, keys: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Actions for a batch of keys; returns ``(actions, hits)`` where ``hits`` marks the queries
-        the memory could answer (logged as ``memory/hit_rate``)."""
-
-    def predict(
-        self,
-        observation: np.ndarray | dict[str, np.ndarray],
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = False,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict``, without a tensor round trip through the memory.
-
-        The observation is prepared by SB3's :meth:`obs_to_tensor`, as for any SB3 policy: channel-last
-        images are transposed channel-first (as ``VecTransposeImage`` did during training, so the memory
-        sees the keys it was trained on) and a single observation gets a batch dimension. The actions
-        have SB3's shapes: ``(n, *action_space.shape)`` for a batch, ``action_space.shape`` for one
-        observation (an array of shape ``()`` for ``Discrete``, as SB3's DQN returns), and the action space's
-        dtype (the memory computes in float32).
-
-        :param observation: one observation or a batch (Dict observations: a dict of those).
-        :param state: passed through (no recurrent state).
-        :param episode_start: unused (no recurrent state).
-        :param deterministic: greedy action if True, else the training-time (exploring) action.
-        :return: the actions and ``state``.
-        """
-        if isinstance(observation, tuple) and len(observation) == 2 and isinstance(observation[1], dict):
-            raise ValueError(
-                "predict() got a tuple (obs, info): pass only the observation returned by env.reset()/step()"
-            )
-        obs_tensor, vectorized = self.obs_to_tensor(observation)
-        if isinstance(obs_tensor, dict):
-            batch: np.ndarray | dict[str, np.ndarray] = {k: v.cpu().numpy() for k, v in obs_tensor.items()}
-        else:
-            batch = obs_tensor.cpu().numpy()
-        actions, _ = self.act(self.embedding(batch), deterministic=deterministic)
-        actions = np.asarray(actions, dtype=self.action_space.dtype).reshape((-1, *self.action_space.shape))  # type: ignore[misc]
-        if not vectorized:
-            actions = actions.squeeze(axis=0)
-        return actions, state
-
-    def _predict(self, observation: th.Tensor | dict[str, th.Tensor], deterministic: bool = False) -> th.Tensor:
-        if isinstance(observation, dict):
-            obs: np.ndarray | dict[str, np.ndarray] = {k: v.cpu().numpy() for k, v in observation.items()}
-        else:
-            obs = observation.cpu().numpy()
-        actions, _ = self.act(self.embedding(obs), deterministic=deterministic)
-        return th.as_tensor(actions)
-
-    def forward(self, obs: th.Tensor, deterministic: bool = False) -> th.Tensor:
-        return self._predict(obs, deterministic)
-
-    def get_extra_state(self) -> dict[str, th.Tensor]:
-        """Memory rows, projection matrix and the action-sampling generator's state, as tensors, for
-        ``state_dict``/``policy.pth``."""
-        return {**memory_state(self.memory, self.embedding), "rng": generator_state(self.rng)}
-
-    def set_extra_state(self, state: dict[str, th.Tensor]) -> None:
-        """Restore what :meth:`get_extra_state` returned (see :func:`load_memory_state`); the action-sampling
-        generator continues where the saved one stopped."""
-        load_memory_state(self, self.memory, self.embedding, state)
-        self.rng = restore_generator(state["rng"])
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        del data["normalize_images"]  # no network, nothing to normalize: keys are built from the raw observation
-        data.update(
-            projection_dim=self.projection_dim,
-            observation_keys=self.observation_keys,
-            seed=self.seed,
-            knn_backend=self.knn_backend,
-            rebuild_threshold=self.rebuild_threshold,
-            **self.memory_settings(),
-        )
-        return data
 
 
 class EpisodicControlAlgorithm(EpisodeRecordingMixin, ModelFileMixin, BaseAlgorithm):

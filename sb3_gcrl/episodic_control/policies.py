@@ -1,0 +1,155 @@
+"""Base policy of the episodic-control algorithms (CEC, MFEC): the memory *is* the policy.
+
+An episodic-control agent has no network and no gradient step. So the policy is a
+:class:`~stable_baselines3.common.policies.BasePolicy` without parameters that holds the memory and a
+:class:`~sb3_gcrl.memory.embedding.KeyEmbedding`, works on numpy end to end (no tensor round trip per step), and puts
+the memory into its ``state_dict`` through ``get_extra_state`` (:func:`~sb3_gcrl.memory.serialization.memory_state`:
+used rows only, as tensors), so ``save``/``load`` restore it exactly inside the usual ``policy.pth`` of the SB3 zip.
+"""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BasePolicy
+
+from sb3_gcrl.common.seeding import generator_state, restore_generator
+from sb3_gcrl.common.validation import check_optional_int
+from sb3_gcrl.memory.embedding import KeyEmbedding
+from sb3_gcrl.memory.knn import KNNBackend
+from sb3_gcrl.memory.serialization import load_memory_state, memory_state
+
+
+class EpisodicControlPolicy(BasePolicy):
+    """Base policy holding an episodic memory and the observation -> key embedding.
+
+    Subclasses create ``self.memory`` (with ``state_dict``/``load_state_dict``/``__len__``), implement :meth:`act`
+    and list the constructor arguments of their memory settings in :attr:`memory_parameters` (saved by
+    ``policy.save``, handed on by :class:`~sb3_gcrl.episodic_control.EpisodicControlAlgorithm`).
+
+    :param observation_space: observation space (Box, Discrete, MultiBinary or Dict of those).
+    :param action_space: action space.
+    :param projection_dim: random-projection dimension of the keys, ``None`` for raw observations.
+    :param observation_keys: Dict observation keys used for the key, in order (default
+        ``("observation", "desired_goal")`` for goal envs).
+    :param seed: seed of the projection matrix and of the policy's action-sampling generator.
+    :param knn_backend: kNN backend of the memory (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
+    :param rebuild_threshold: KD-tree rebuild threshold of the memory (``None``: automatic).
+    """
+
+    #: constructor arguments of the memory settings, each an attribute of the same name of the memory (or of the
+    #: policy, for the policy's own settings such as CEC's exploration noise)
+    memory_parameters: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        projection_dim: int | None = None,
+        observation_keys: Sequence[str] | None = None,
+        seed: int | None = None,
+        knn_backend: KNNBackend = "auto",
+        rebuild_threshold: int | None = None,
+    ) -> None:
+        super().__init__(observation_space, action_space)
+        self.projection_dim = projection_dim
+        self.observation_keys = None if observation_keys is None else tuple(observation_keys)
+        self.seed = seed
+        self.knn_backend = knn_backend
+        self.rebuild_threshold = check_optional_int("rebuild_threshold", rebuild_threshold)
+        self.embedding = KeyEmbedding(observation_space, projection_dim, seed, self.observation_keys)
+        self.rng = np.random.default_rng(seed)
+        #: probability of exploring (epsilon), set by the algorithm's schedule during training
+        self.exploration_rate = 0.0
+
+    def memory_settings(self) -> dict[str, Any]:
+        """The memory settings as the policy uses them (checked and converted), by constructor argument name."""
+        return {
+            name: getattr(self.memory if hasattr(self.memory, name) else self, name) for name in self.memory_parameters
+        }
+
+    def set_seed(self, seed: int | None) -> None:
+        """Reseed the action-sampling generator (the projection matrix stays as it is)."""
+        self.rng = np.random.default_rng(seed)
+
+    @abstractmethod
+    def act(self, keys: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Actions for a batch of keys; returns ``(actions, hits)`` where ``hits`` marks the queries
+        the memory could answer (logged as ``memory/hit_rate``)."""
+
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """SB3's ``predict``, without a tensor round trip through the memory.
+
+        The observation is prepared by SB3's :meth:`obs_to_tensor`, as for any SB3 policy: channel-last
+        images are transposed channel-first (as ``VecTransposeImage`` did during training, so the memory
+        sees the keys it was trained on) and a single observation gets a batch dimension. The actions
+        have SB3's shapes: ``(n, *action_space.shape)`` for a batch, ``action_space.shape`` for one
+        observation (an array of shape ``()`` for ``Discrete``, as SB3's DQN returns), and the action space's
+        dtype (the memory computes in float32).
+
+        :param observation: one observation or a batch (Dict observations: a dict of those).
+        :param state: passed through (no recurrent state).
+        :param episode_start: unused (no recurrent state).
+        :param deterministic: greedy action if True, else the training-time (exploring) action.
+        :return: the actions and ``state``.
+        """
+        if isinstance(observation, tuple) and len(observation) == 2 and isinstance(observation[1], dict):
+            raise ValueError(
+                "predict() got a tuple (obs, info): pass only the observation returned by env.reset()/step()"
+            )
+        obs_tensor, vectorized = self.obs_to_tensor(observation)
+        if isinstance(obs_tensor, dict):
+            batch: np.ndarray | dict[str, np.ndarray] = {k: v.cpu().numpy() for k, v in obs_tensor.items()}
+        else:
+            batch = obs_tensor.cpu().numpy()
+        actions, _ = self.act(self.embedding(batch), deterministic=deterministic)
+        actions = np.asarray(actions, dtype=self.action_space.dtype).reshape((-1, *self.action_space.shape))  # type: ignore[misc]
+        if not vectorized:
+            actions = actions.squeeze(axis=0)
+        return actions, state
+
+    def _predict(self, observation: th.Tensor | dict[str, th.Tensor], deterministic: bool = False) -> th.Tensor:
+        if isinstance(observation, dict):
+            obs: np.ndarray | dict[str, np.ndarray] = {k: v.cpu().numpy() for k, v in observation.items()}
+        else:
+            obs = observation.cpu().numpy()
+        actions, _ = self.act(self.embedding(obs), deterministic=deterministic)
+        return th.as_tensor(actions)
+
+    def forward(self, obs: th.Tensor, deterministic: bool = False) -> th.Tensor:
+        return self._predict(obs, deterministic)
+
+    def get_extra_state(self) -> dict[str, th.Tensor]:
+        """Memory rows, projection matrix and the action-sampling generator's state, as tensors, for
+        ``state_dict``/``policy.pth``."""
+        return {**memory_state(self.memory, self.embedding), "rng": generator_state(self.rng)}
+
+    def set_extra_state(self, state: dict[str, th.Tensor]) -> None:
+        """Restore what :meth:`get_extra_state` returned (see :func:`load_memory_state`); the action-sampling
+        generator continues where the saved one stopped."""
+        load_memory_state(self, self.memory, self.embedding, state)
+        self.rng = restore_generator(state["rng"])
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        del data["normalize_images"]  # no network, nothing to normalize: keys are built from the raw observation
+        data.update(
+            projection_dim=self.projection_dim,
+            observation_keys=self.observation_keys,
+            seed=self.seed,
+            knn_backend=self.knn_backend,
+            rebuild_threshold=self.rebuild_threshold,
+            **self.memory_settings(),
+        )
+        return data
