@@ -605,7 +605,7 @@ def test_settings_have_the_same_defaults_for_the_algorithms_the_callback_and_the
 
     from sb3_gcrl.tabular import TabularTwoMemoryPolicy
     from sb3_gcrl.two_memory import TwoMemoryCallback, TwoMemoryDispatcher, TwoMemoryDQNPolicy, TwoMemorySACPolicy
-    from sb3_gcrl.two_memory.dispatch import TwoMemoryAlgorithmMixin
+    from sb3_gcrl.two_memory.algorithm import TwoMemoryAlgorithmMixin
 
     def defaults(function) -> dict:
         return {name: p.default for name, p in inspect.signature(function).parameters.items()}

@@ -18,7 +18,7 @@ from stable_baselines3.common.type_aliases import Schedule
 from sb3_gcrl.common.seeding import draw_seed, generator_state, restore_generator, seeded_generator
 from sb3_gcrl.common.validation import check_float
 from sb3_gcrl.memory.mfec_memory import argmax_random_ties
-from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatchMixin
+from sb3_gcrl.two_memory.policy_mixin import TwoMemoryDispatchMixin
 
 
 def check_tabular_spaces(observation_space: spaces.Space, action_space: spaces.Space, who: str) -> tuple[int, int]:

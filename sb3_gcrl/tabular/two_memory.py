@@ -10,7 +10,7 @@ from stable_baselines3.common.policies import BasePolicy
 from sb3_gcrl.common.arguments import constructor_defaults
 from sb3_gcrl.tabular.policies import TabularTwoMemoryPolicy
 from sb3_gcrl.tabular.q_learning import TabularQLearning
-from sb3_gcrl.two_memory.dispatch import TwoMemoryAlgorithmMixin
+from sb3_gcrl.two_memory.algorithm import TwoMemoryAlgorithmMixin
 
 #: the EC settings' defaults, stated by the policy
 _POLICY = constructor_defaults(TabularTwoMemoryPolicy)
@@ -27,7 +27,7 @@ class TabularTwoMemory(TwoMemoryAlgorithmMixin, TabularQLearning):
     :param env: env with Discrete observation and action spaces.
     :param unseen_value: EC value of an unvisited (s, a) (authors: 0).
     :param initial_q: initial Q-value.
-    :param kwargs: the 2M settings of :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryAlgorithmMixin`
+    :param kwargs: the 2M settings of :class:`~sb3_gcrl.two_memory.algorithm.TwoMemoryAlgorithmMixin`
         (``p_ec_schedule``, ``None``: :attr:`default_p_ec_schedule`, the authors' tabular 0.9 -> 0.01 with decay
         2e4 steps (Eq. 5.5); ``data_sharing``, ``False``: 2Mw/oDS; ``score_window``; ``ec_gamma``, ``None``:
         ``gamma``; ``ec_update_truncated``) and the other

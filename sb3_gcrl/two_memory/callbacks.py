@@ -20,7 +20,9 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_gcrl.two_memory.dispatch import PecSpec, TwoMemoryAlgorithmMixin, TwoMemoryDispatcher, TwoMemoryDispatchMixin
+from sb3_gcrl.two_memory.algorithm import TwoMemoryAlgorithmMixin
+from sb3_gcrl.two_memory.dispatch import PecSpec, TwoMemoryDispatcher
+from sb3_gcrl.two_memory.policy_mixin import TwoMemoryDispatchMixin
 from sb3_gcrl.two_memory.schedules import DEFAULT_P_EC_SCHEDULE
 
 

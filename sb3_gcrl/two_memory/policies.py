@@ -1,7 +1,7 @@
 """2M hybrid policies: an episodic memory (MFEC or CEC) and an SB3 network (DQN or SAC) behind one dispatch.
 
 The dispatch (which memory acts per episode and env, score windows, evaluation memory of Eq. 5.6) comes from
-:class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryDispatchMixin`; the memories come from :mod:`sb3_gcrl.memory` and act
+:class:`~sb3_gcrl.two_memory.policy_mixin.TwoMemoryDispatchMixin`; the memories come from :mod:`sb3_gcrl.memory` and act
 as in standalone CEC / MFEC (:mod:`sb3_gcrl.memory.actors`).
 Everything is in the policy's ``state_dict`` (the episodic table through ``get_extra_state``, used rows only), so
 ``save``/``load`` restore the table, the network and the score windows exactly.
@@ -25,7 +25,8 @@ from sb3_gcrl.common.validation import check_float
 from sb3_gcrl.memory import CECMemory, KeyEmbedding, MFECMemory
 from sb3_gcrl.memory.actors import cec_actions, mfec_actions
 from sb3_gcrl.memory.serialization import load_memory_state, memory_state
-from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatchMixin
+from sb3_gcrl.two_memory.dispatch import TwoMemoryDispatcher
+from sb3_gcrl.two_memory.policy_mixin import TwoMemoryDispatchMixin
 
 
 class MinAtarCNN(BaseFeaturesExtractor):
@@ -164,7 +165,7 @@ class TwoMemoryDQNPolicy(KeyedMemoryDispatchMixin, DQNPolicy):
         knn_backend: str = "auto",
         **kwargs: Any,
     ) -> None:
-        self.refuse_dispatcher_settings(kwargs, type(self).__name__)
+        TwoMemoryDispatcher.refuse_settings(kwargs, type(self).__name__)
         DQNPolicy.__init__(self, observation_space, action_space, lr_schedule, **kwargs)
         self._init_dispatch(score_window)
         self._init_keyed_memory(ec_projection_dim, ec_seed, knn_backend)
@@ -271,7 +272,7 @@ class TwoMemorySACPolicy(KeyedMemoryDispatchMixin, SACPolicy):
         knn_backend: str = "auto",
         **kwargs: Any,
     ) -> None:
-        self.refuse_dispatcher_settings(kwargs, type(self).__name__)
+        TwoMemoryDispatcher.refuse_settings(kwargs, type(self).__name__)
         SACPolicy.__init__(self, observation_space, action_space, lr_schedule, **kwargs)
         self._init_dispatch(score_window)
         self.ec_epsilon = check_float("ec_epsilon", ec_epsilon, 0.0, 1.0)

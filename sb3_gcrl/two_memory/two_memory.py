@@ -9,7 +9,7 @@ from stable_baselines3 import DQN, SAC
 from stable_baselines3.common.policies import BasePolicy
 
 from sb3_gcrl.common.arguments import constructor_defaults
-from sb3_gcrl.two_memory.dispatch import TwoMemoryAlgorithmMixin
+from sb3_gcrl.two_memory.algorithm import TwoMemoryAlgorithmMixin
 from sb3_gcrl.two_memory.policies import (
     TwoMemoryDQNPolicy,
     TwoMemoryMinAtarPolicy,
@@ -31,7 +31,7 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
     episode updates MFEC (data sharing; ``data_sharing=False`` is ablation 2Mw/oDS: each memory learns only from its
     own episodes). ``predict(deterministic=True)`` uses the memory with the higher mean return over its last
     ``score_window`` training episodes (Eq. 5.6). Logs ``two_memory/*`` (see
-    :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryAlgorithmMixin`).
+    :class:`~sb3_gcrl.two_memory.algorithm.TwoMemoryAlgorithmMixin`).
 
     Policies: ``"MlpPolicy"`` (SB3 MLP Q-network), ``"MinAtarPolicy"`` (the authors' CNN), ``"MultiInputPolicy"``
     (Dict observations, e.g. goal envs).
@@ -42,7 +42,7 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
     :param ec_capacity_per_action: rows per MFEC action table (None: authors' ``1e5 / (2 * n_actions)``).
     :param ec_n_neighbors: k of the MFEC estimate (Table 5.1: 3).
     :param knn_backend: kNN backend of the MFEC tables (see :class:`~sb3_gcrl.memory.KNNIndex`).
-    :param kwargs: the 2M settings (see :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryAlgorithmMixin`):
+    :param kwargs: the 2M settings (see :class:`~sb3_gcrl.two_memory.algorithm.TwoMemoryAlgorithmMixin`):
         ``p_ec_schedule`` (``None``: :attr:`default_p_ec_schedule`, Eq. 5.5 with the thesis's decayed schedule
         0.9 -> 0.1 of Table 5.1 / Sec. 5.5.3 and decay 5e5 env steps), ``data_sharing`` (thesis Sec. 5.4.3),
         ``score_window`` (n of Eq. 5.6, 50), ``ec_gamma`` (discount of the MFEC returns, ``None``: ``gamma``),
