@@ -77,7 +77,12 @@ class CEC(EpisodicControlAlgorithm):
         projection_dim: int | None = None,
         **kwargs: Any,
     ) -> None:
-        self._keep_memory_settings(locals())
+        self.capacity = capacity
+        self.distance_threshold = distance_threshold
+        self.filter_factor = filter_factor
+        self.n_neighbors = n_neighbors
+        self.temperature = temperature
+        self.noise_std = noise_std
         super().__init__(
             policy, env, exploration_initial_eps, exploration_final_eps, exploration_fraction, projection_dim, **kwargs
         )
@@ -92,6 +97,16 @@ class CEC(EpisodicControlAlgorithm):
                 "CEC needs a bounded Box action space (random actions are drawn uniformly from it); "
                 "rescale the env's actions, e.g. with gymnasium.wrappers.RescaleAction"
             )
+
+    def _memory_kwargs(self) -> dict[str, Any]:
+        return {
+            "capacity": self.capacity,
+            "distance_threshold": self.distance_threshold,
+            "filter_factor": self.filter_factor,
+            "n_neighbors": self.n_neighbors,
+            "temperature": self.temperature,
+            "noise_std": self.noise_std,
+        }
 
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
         return self.policy.memory.update_episode(keys, actions.reshape(len(actions), -1), returns)

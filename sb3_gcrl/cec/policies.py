@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -43,14 +43,6 @@ class CECPolicy(EpisodicControlPolicy):
     """
 
     action_space: spaces.Box
-    memory_parameters: ClassVar[tuple[str, ...]] = (
-        "capacity",
-        "distance_threshold",
-        "filter_factor",
-        "n_neighbors",
-        "temperature",
-        "noise_std",
-    )
 
     def __init__(
         self,
@@ -80,6 +72,17 @@ class CECPolicy(EpisodicControlPolicy):
         )
         self._low = action_space.low.astype(np.float32).reshape(-1)
         self._high = action_space.high.astype(np.float32).reshape(-1)
+
+    def memory_settings(self) -> dict[str, Any]:
+        """The memory settings as the memory and the policy checked them, by constructor argument name."""
+        return {
+            "capacity": self.memory.capacity,
+            "distance_threshold": self.memory.distance_threshold,
+            "filter_factor": self.memory.filter_factor,
+            "n_neighbors": self.memory.n_neighbors,
+            "temperature": self.memory.temperature,
+            "noise_std": self.noise_std,
+        }
 
     def act(self, keys: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Actions ``(n, *action_shape)`` for keys ``(n, key_dim)`` and the mask of memory hits

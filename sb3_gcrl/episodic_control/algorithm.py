@@ -25,7 +25,6 @@ from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import LinearSchedule, safe_mean
 
-from sb3_gcrl.common.arguments import settings_among
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.validation import check_choice, check_finite_rewards, check_float, check_int, check_optional_int
 from sb3_gcrl.episodic_control.policies import EpisodicControlPolicy
@@ -38,12 +37,14 @@ SelfEpisodicControlAlgorithm = TypeVar("SelfEpisodicControlAlgorithm", bound="Ep
 class EpisodicControlAlgorithm(EpisodeRecordingMixin, ModelFileMixin, BaseAlgorithm):
     """Learn loop of episodic control: act with the memory, update it after every finished episode.
 
-    Subclasses set ``policy_aliases`` and implement :meth:`_check_spaces` and :meth:`_update_memory`. The first
-    parameters after ``env`` are the ones whose defaults differ between the algorithms (each states its own, the
-    authors' values, and passes them on in order). The memory settings are the policy's (its
-    :attr:`~EpisodicControlPolicy.memory_parameters`, with their defaults): a subclass takes them under the same names,
-    reads their defaults from the policy and keeps them with :meth:`_keep_memory_settings`; the policy checks them,
-    and they stay attributes of the same name, as the policy converted them.
+    Subclasses set ``policy_aliases`` and implement :meth:`_check_spaces`, :meth:`_memory_kwargs` and
+    :meth:`_update_memory`. The first parameters after ``env`` are the ones whose defaults differ between the
+    algorithms (each states its own, the authors' values, and passes them on in order). The memory settings are the
+    policy's constructor arguments (with their defaults): a subclass takes them under the same names, reads their
+    defaults from the policy (:func:`~sb3_gcrl.common.arguments.constructor_defaults`), keeps each as an attribute
+    of the same name before calling this constructor and hands them to the policy in :meth:`_memory_kwargs`; the
+    policy checks them, and the attributes then hold them as the policy converted them
+    (:meth:`~sb3_gcrl.episodic_control.EpisodicControlPolicy.memory_settings`).
 
     :param policy: policy class or alias.
     :param env: env, VecEnv or registered env id; any number of envs.
@@ -130,19 +131,14 @@ class EpisodicControlAlgorithm(EpisodeRecordingMixin, ModelFileMixin, BaseAlgori
         if _init_setup_model:
             self._setup_model()
 
-    def _keep_memory_settings(self, arguments: dict[str, Any]) -> None:
-        """Keep the memory settings among a subclass constructor's arguments as attributes, for the policy that
-        ``_setup_model`` builds (and that checks them). Call it before this class's constructor.
-
-        :param arguments: the subclass constructor's ``locals()``.
-        """
-        policy_class = next(iter(self.policy_aliases.values()))
-        vars(self).update(settings_among(arguments, policy_class.memory_parameters))  # type: ignore[attr-defined]
-
     # ------------------------------------------------------------------ to implement
     @abstractmethod
     def _check_spaces(self, observation_space: spaces.Space, action_space: spaces.Space) -> None:
         """Raise a ``ValueError`` naming the fix when the spaces are not supported."""
+
+    @abstractmethod
+    def _memory_kwargs(self) -> dict[str, Any]:
+        """The memory settings handed to the policy by ``_setup_model``, by its constructor argument names."""
 
     @abstractmethod
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
@@ -199,7 +195,7 @@ class EpisodicControlAlgorithm(EpisodeRecordingMixin, ModelFileMixin, BaseAlgori
             seed=self.seed,
             knn_backend=self.knn_backend,
             rebuild_threshold=self.rebuild_threshold,
-            **{name: getattr(self, name) for name in self.policy_class.memory_parameters},
+            **self._memory_kwargs(),
         )
         kwargs.update(self.policy_kwargs)
         self.policy = self.policy_class(self.observation_space, self.action_space, **kwargs)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from abc import abstractmethod
 from collections.abc import Sequence
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -29,8 +29,8 @@ class EpisodicControlPolicy(BasePolicy):
     """Base policy holding an episodic memory and the observation -> key embedding.
 
     Subclasses create ``self.memory`` (with ``state_dict``/``load_state_dict``/``__len__``), implement :meth:`act`
-    and list the constructor arguments of their memory settings in :attr:`memory_parameters` (saved by
-    ``policy.save``, handed on by :class:`~sb3_gcrl.episodic_control.EpisodicControlAlgorithm`).
+    and return their memory settings by constructor argument name from :meth:`memory_settings` (saved by
+    ``policy.save``; :class:`~sb3_gcrl.episodic_control.EpisodicControlAlgorithm` keeps them as it checked them).
 
     :param observation_space: observation space (Box, Discrete, MultiBinary or Dict of those).
     :param action_space: action space.
@@ -41,10 +41,6 @@ class EpisodicControlPolicy(BasePolicy):
     :param knn_backend: kNN backend of the memory (see :class:`~sb3_gcrl.memory.knn.KNNIndex`).
     :param rebuild_threshold: KD-tree rebuild threshold of the memory (``None``: automatic).
     """
-
-    #: constructor arguments of the memory settings, each an attribute of the same name of the memory (or of the
-    #: policy, for the policy's own settings such as CEC's exploration noise)
-    memory_parameters: ClassVar[tuple[str, ...]] = ()
 
     def __init__(
         self,
@@ -67,11 +63,9 @@ class EpisodicControlPolicy(BasePolicy):
         #: probability of exploring (epsilon), set by the algorithm's schedule during training
         self.exploration_rate = 0.0
 
+    @abstractmethod
     def memory_settings(self) -> dict[str, Any]:
         """The memory settings as the policy uses them (checked and converted), by constructor argument name."""
-        return {
-            name: getattr(self.memory if hasattr(self.memory, name) else self, name) for name in self.memory_parameters
-        }
 
     def set_seed(self, seed: int | None) -> None:
         """Reseed the action-sampling generator (the projection matrix stays as it is)."""

@@ -62,7 +62,8 @@ class MFEC(EpisodicControlAlgorithm):
         projection_dim: int | None = 8,
         **kwargs: Any,
     ) -> None:
-        self._keep_memory_settings(locals())
+        self.capacity_per_action = capacity_per_action
+        self.n_neighbors = n_neighbors
         super().__init__(
             policy, env, exploration_initial_eps, exploration_final_eps, exploration_fraction, projection_dim, **kwargs
         )
@@ -72,6 +73,9 @@ class MFEC(EpisodicControlAlgorithm):
             raise ValueError(
                 f"MFEC needs a Discrete action space, got {action_space}; use sb3_gcrl.CEC for continuous (Box) actions"
             )
+
+    def _memory_kwargs(self) -> dict[str, Any]:
+        return {"capacity_per_action": self.capacity_per_action, "n_neighbors": self.n_neighbors}
 
     def _update_memory(self, keys: np.ndarray, actions: np.ndarray, returns: np.ndarray) -> dict[str, int]:
         added = self.policy.memory.update_episode(keys, actions - self.policy.action_start, returns)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -35,7 +35,6 @@ class MFECPolicy(EpisodicControlPolicy):
     """
 
     action_space: spaces.Discrete
-    memory_parameters: ClassVar[tuple[str, ...]] = ("capacity_per_action", "n_neighbors")
 
     def __init__(
         self,
@@ -57,6 +56,10 @@ class MFECPolicy(EpisodicControlPolicy):
         )
         #: ``action_space.start``: env actions are ``start + a`` for the table index ``a``
         self.action_start = int(action_space.start)
+
+    def memory_settings(self) -> dict[str, Any]:
+        """The memory settings as the memory checked them, by constructor argument name."""
+        return {"capacity_per_action": self.memory.capacity_per_action, "n_neighbors": self.memory.n_neighbors}
 
     def q_values(self, keys: np.ndarray) -> np.ndarray:
         """``Q_ec(s, .)`` for a batch of keys: ``(n, n_actions)``."""

@@ -48,7 +48,7 @@ class TabularTwoMemory(TwoMemoryAlgorithmMixin, TabularQLearning):
         initial_q: float = _POLICY["initial_q"],
         **kwargs: Any,
     ) -> None:
-        super().__init__(policy, env, ec_kwargs=self.policy_settings(locals()), **kwargs)
+        super().__init__(policy, env, ec_kwargs={"unseen_value": unseen_value, "initial_q": initial_q}, **kwargs)
 
     @property
     def ec_table(self) -> np.ndarray:

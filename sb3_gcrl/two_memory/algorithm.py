@@ -19,7 +19,6 @@ from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 
-from sb3_gcrl.common.arguments import settings_among
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.seeding import SeededGeneratorMixin
@@ -82,8 +81,9 @@ class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRu
         :param score_window: n of Eq. 5.6 (50).
         :param ec_gamma: discount of the returns stored in the episodic memory (``None``: ``gamma``).
         :param ec_update_truncated: also write time-limit-truncated episodes into the episodic memory.
-        :param ec_kwargs: the subclass's EC settings (constructor arguments of its policy, see :meth:`policy_settings`),
-            handed to the policy.
+        :param ec_kwargs: the subclass's EC settings, handed to the policy: constructor arguments of its policy, which
+            the subclass takes under the same names, with the policy's defaults
+            (:func:`~sb3_gcrl.common.arguments.constructor_defaults`).
         :param kwargs: the SB3 algorithm's arguments.
         :raises ValueError: for an action space of the other 2M algorithm, a bad schedule or setting, a 2M / EC
             setting given in ``policy_kwargs``, or ``n_steps > 1`` without a ``replay_buffer_class`` of the user's.
@@ -118,17 +118,6 @@ class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRu
         self.dispatcher = dispatcher
         if init_setup_model:
             self._setup_model()
-
-    @classmethod
-    def policy_settings(cls, arguments: dict[str, Any]) -> dict[str, Any]:
-        """The policy's settings among a subclass constructor's arguments (``locals()``): those named in the 2M
-        policy class's ``ec_parameters``, which the subclass takes under the same names (with the policy's defaults,
-        :func:`~sb3_gcrl.common.arguments.constructor_defaults`).
-
-        :param arguments: the constructor's arguments by name.
-        :return: the settings to hand to the policy (``ec_kwargs``).
-        """
-        return settings_among(arguments, cls.two_memory_policy_class.ec_parameters)  # type: ignore[attr-defined]
 
     @property
     def p_ec(self) -> float:

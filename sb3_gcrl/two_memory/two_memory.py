@@ -72,7 +72,13 @@ class TwoMemoryDQN(TwoMemoryAlgorithmMixin, DQN):
         knn_backend: str = _MFEC["knn_backend"],
         **kwargs: Any,
     ) -> None:
-        super().__init__(policy, env, ec_kwargs=self.policy_settings(locals()), **kwargs)
+        ec_kwargs = {
+            "ec_projection_dim": ec_projection_dim,
+            "ec_capacity_per_action": ec_capacity_per_action,
+            "ec_n_neighbors": ec_n_neighbors,
+            "knn_backend": knn_backend,
+        }
+        super().__init__(policy, env, ec_kwargs=ec_kwargs, **kwargs)
 
 
 class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
@@ -126,7 +132,18 @@ class TwoMemorySAC(TwoMemoryAlgorithmMixin, SAC):
         knn_backend: str = _CEC["knn_backend"],
         **kwargs: Any,
     ) -> None:
-        super().__init__(policy, env, ec_kwargs=self.policy_settings(locals()), **kwargs)
+        ec_kwargs = {
+            "ec_projection_dim": ec_projection_dim,
+            "ec_capacity": ec_capacity,
+            "ec_distance_threshold": ec_distance_threshold,
+            "ec_filter_factor": ec_filter_factor,
+            "ec_n_neighbors": ec_n_neighbors,
+            "ec_temperature": ec_temperature,
+            "ec_epsilon": ec_epsilon,
+            "ec_noise_std": ec_noise_std,
+            "knn_backend": knn_backend,
+        }
+        super().__init__(policy, env, ec_kwargs=ec_kwargs, **kwargs)
 
     def _setup_model(self) -> None:
         if self.use_sde:
