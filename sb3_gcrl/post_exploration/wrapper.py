@@ -83,6 +83,7 @@ class PostExplorationWrapper(GoalCommandWrapper):
         scheduler_kwargs: dict[str, Any] | None = None,
         success_distance: float | None = None,
     ) -> None:
+        # record this class's arguments (so gym.make can re-create the wrapper), before the parent records its own
         gym.utils.RecordConstructorArgs.__init__(
             self,
             post_exploration=post_exploration,
