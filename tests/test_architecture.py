@@ -36,11 +36,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
 )
 
 #: upward arrows that stay for now, (importer, imported) -> why; each must still exist (a fixed one is removed here)
-UPWARD_EXCEPTIONS: dict[tuple[str, str], str] = {
-    # compare/cli.py and compare/runner.py read ZOO_CONFIGS_DIR through sb3_gcrl.cli, which re-exports it from
-    # sb3_gcrl.zoo_config (a layer below compare): importing it from zoo_config removes the arrow
-    ("compare", "cli"): "ZOO_CONFIGS_DIR read through the command line's re-export of zoo_config's",
-}
+UPWARD_EXCEPTIONS: dict[tuple[str, str], str] = {}
 
 LAYER_OF: dict[str, int] = {package: index for index, (_, packages) in enumerate(LAYERS) for package in packages}
 

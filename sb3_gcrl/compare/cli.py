@@ -122,8 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     :param argv: arguments without the program name (default ``sys.argv[1:]``).
     :return: 0 when every run finished, 1 when some failed, 2 on bad arguments, 130 when interrupted.
     """
-    from sb3_gcrl.cli import ZOO_CONFIGS_DIR
     from sb3_gcrl.compare.presets import DEFAULT_PRESET, PRESETS
+    from sb3_gcrl.zoo_config import ZOO_CONFIGS_DIR
 
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()

@@ -10,7 +10,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sb3_gcrl.cli import ZOO_CONFIGS_DIR
 from sb3_gcrl.common.validation import check_int, check_optional_int, check_writable_folder
 from sb3_gcrl.compare.backends import Backend, Job, LocalProcessBackend, RayBackend
 from sb3_gcrl.compare.methods import Method, check_env_id, parse_method
@@ -23,7 +22,7 @@ from sb3_gcrl.compare.storage import (
     is_finished,
     lock_output,
 )
-from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks, run_budget
+from sb3_gcrl.zoo_config import ZOO_CONFIGS_DIR, check_hyperparameters, check_mode_switching_callbacks, run_budget
 
 #: evaluations per run when ``eval_freq`` is not given
 DEFAULT_N_EVALUATIONS = 20
