@@ -12,7 +12,7 @@ run resumed from (steps of segments still open are not counted).
 
 Algorithms (tiny budgets and networks, so a trial takes well under a minute of one core):
 
-* ``sac``: the reset-free MoReFree-SAC port (Back-and-Forth Go-Explore wrappers, task-relevant HER) on PointUMaze;
+* ``sac``: MoReFree-SAC, reset-free (Back-and-Forth Go-Explore wrappers, task-relevant HER) on PointUMaze;
 * ``morefree``: the world-model MoReFree agent (CPU preset, tiny budget) on reset-free PointUMaze;
 * ``cec``: continuous episodic control on episodic PointUMaze (the memory lives in the model file).
 

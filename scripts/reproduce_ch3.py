@@ -1,9 +1,9 @@
 """Reproduce the reset-free comparisons of thesis Ch. 3 (Fig. 3.4, Fig. 3.5) on PointUMaze and Tabletop.
 
 The runs are the ``ch3`` / ``ch3-ablations`` / ``ch3-world-model`` / ``ch3-baselines`` / ``ch3-baselines-tabletop``
-comparison presets of ``sb3-gcrl compare`` (the model-free MoReFree port (SAC) and its baselines and ablations,
-MoReFree (world model) and reset-free PEG, IBC, MEDAL and R3L): each method is a plain RL-Zoo run of a section of
-``zoo_configs/<algo>.yml`` (the port: the env's section of ``sac.yml``, its baselines and ablations the variants
+comparison presets of ``sb3-gcrl compare`` (MoReFree-SAC and its baselines and ablations, MoReFree (world model)
+and reset-free PEG, IBC, MEDAL and R3L): each method is a plain RL-Zoo run of a section of
+``zoo_configs/<algo>.yml`` (MoReFree-SAC: the env's section of ``sac.yml``, its baselines and ablations the variants
 ``<env id>@<method>``; what ``sb3-gcrl train --algo sac --env ... [--variant METHOD]`` runs), evaluated on RL-Zoo's
 eval env, which has the same ``env_wrapper`` and stays episodic (start in rho_0, goal
 from rho_g*, T_eval steps). This script only picks methods, budget and seeds, and adds the chapter's table:
@@ -166,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
         choices=PRESETS,
         default="ch3",
         help="budget, seeds and default methods (ch3-world-model: the world-model agent vs reset-free PEG vs the "
-        "MoReFree-SAC port; ch3-baselines[-tabletop]: IBC, MEDAL and R3L beside those three on PointUMaze "
+        "MoReFree-SAC; ch3-baselines[-tabletop]: IBC, MEDAL and R3L beside those three on PointUMaze "
         "[Tabletop]); --methods may pick labels of any of these presets",
     )
     parser.add_argument("--methods", nargs="+", choices=labels, help="default: the preset's methods")

@@ -412,7 +412,7 @@ ZOO_KEYS = {"n_timesteps", "policy", "env_wrapper", "callback", "monitor_kwargs"
 
 def test_configs_exist_for_every_task_with_demonstrations_and_r3l_for_every_reset_free_task():
     names = set(BASELINE_CONFIGS)
-    # the reset-free tasks: those with the naive reset-free baseline of the model-free MoReFree port (SAC)
+    # the reset-free tasks: those with the naive reset-free baseline of MoReFree-SAC
     tasks = {env for env, variants in config_sections(ZOO_CONFIGS / "sac.yml").items() if "naive" in variants}
     assert {("r3l", task) for task in tasks} <= names and len(tasks) == 8
     assert {("medal", "GCRL/PointUMazeGoal-v0"), ("medal", "GCRL/Tabletop-v0")} <= names

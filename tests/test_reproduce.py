@@ -198,7 +198,7 @@ def test_reproduce_ch3_quick(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_ch3_baselines_preset_runs_every_method(tmp_path: Path) -> None:
-    """IBC, MEDAL, R3L, world-model MoReFree, reset-free PEG and the SAC port train and evaluate side by side."""
+    """IBC, MEDAL, R3L, world-model MoReFree, reset-free PEG and MoReFree-SAC train and evaluate side by side."""
     from sb3_gcrl.compare.presets import run_preset
 
     result = run_preset("ch3-baselines-quick", tmp_path, n_workers=1, progress=False)

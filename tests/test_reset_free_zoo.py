@@ -1,7 +1,7 @@
 """The reset-free configs under RL-Zoo: evaluation stays episodic, every config runs, each setting is stated once.
 
-The model-free MoReFree port (SAC) is the default section of each reset-free task in ``zoo_configs/sac.yml``; its
-baselines and ablations are the variants ``<env id>@<method>`` of the same file.
+MoReFree-SAC is the default section of each reset-free task in ``zoo_configs/sac.yml``; its baselines and ablations
+are the variants ``<env id>@<method>`` of the same file.
 """
 
 from __future__ import annotations
@@ -23,13 +23,13 @@ RESET_FREE_TASKS = (
     "GCRL/PointUMazeGoal-v0", "GCRL/AntArena-v0", "GCRL/Tabletop-v0", "GCRL/SawyerDoor-v0", "GCRL/ErgodicFetchPush-v0",
     "GCRL/ErgodicFetchPickAndPlace-v0", "GCRL/FetchPushHard-v0", "GCRL/FetchPickAndPlaceHard-v0",
 )  # fmt: skip
-#: (env id, variant) of every section of the port and its baselines and ablations (not the post-exploration ones)
+#: (env id, variant) of every section of MoReFree-SAC and its baselines and ablations (not the post-exploration ones)
 SECTIONS = [
     split_section_key(key)
     for key in read_zoo_config(SAC)
     if split_section_key(key)[0] in RESET_FREE_TASKS and "post_exploration" not in key
 ]
-#: the Ch. 3 methods on PointUMaze: the port (None: the default section) and its variants
+#: the Ch. 3 methods on PointUMaze: MoReFree-SAC (None: the default section) and its variants
 METHODS = [variant for env_id, variant in SECTIONS if env_id == ENV_ID]
 # tiny budget: small nets, updates start after the first 300-step segment, evaluation after 300 and 600 steps
 FAST = ["learning_starts:400", "batch_size:32", "policy_kwargs:dict(net_arch=[16])"]
@@ -53,7 +53,7 @@ def zoo_train(config: Path, folder: Path, steps: int, eval_freq: int, variant: s
 
 def test_configs_cover_the_methods_of_chapter_3() -> None:
     assert {"oracle", "naive", "goexplore", None, "wo_bf", "wo_relabel", "alpha1"} <= set(METHODS)
-    morefree = resolve_config("sac", ENV_ID).hyperparams  # the port: the default section
+    morefree = resolve_config("sac", ENV_ID).hyperparams  # MoReFree-SAC: the default section
     assert "TaskRelevantHerReplayBuffer" in morefree["replay_buffer_class"]
     wrapper = morefree["env_wrapper"][1]["sb3_gcrl.wrappers.GoExploreWrapper"]
     assert wrapper["scheduler"] == "back_and_forth" and wrapper["scheduler_kwargs"]["alpha"] == 0.2
@@ -68,7 +68,7 @@ def test_every_config_states_alpha_and_each_horizon_once(env_id: str, variant: s
 
 
 def test_zoo_evaluation_is_episodic_while_training_is_reset_free(tmp_path: Path, monkeypatch) -> None:
-    # plain `rl_zoo3 train -conf zoo_configs/sac.yml`: RL-Zoo picks the env's own section, the port
+    # plain `rl_zoo3 train -conf zoo_configs/sac.yml`: RL-Zoo picks the env's own section, MoReFree-SAC
     run, stdout = zoo_train(SAC, tmp_path, 600, 300)
     evaluations = np.load(run / "evaluations.npz")
     assert list(evaluations["timesteps"]) == [300, 600]

@@ -27,7 +27,7 @@ from sb3_gcrl.zoo_train import INTERRUPTED_EXIT_CODE
 
 ENV = "GCRL/PointUMazeGoal-v0"
 ENV_NAME = "GCRL-PointUMazeGoal-v0"
-#: the model-free MoReFree port (SAC; Back-and-Forth Go-Explore wrappers, task-relevant HER), the default section of
+#: MoReFree-SAC (SAC; Back-and-Forth Go-Explore wrappers, task-relevant HER), the default section of
 #: zoo_configs/sac.yml: a tiny, cheap version of it
 TRAIN = [
     "train", "--algo", "sac", "--env", ENV, "-n", "3000",

@@ -1,7 +1,7 @@
 """The reset-free agents in subprocess envs: they read and answer the Go/Explore wrapper through the VecEnv API only.
 
 The world-model agent (PEG goals planned on the wrapper's request, pi_E acting where ``acting_policy`` says
-``"explorer"``) and the model-free port (stock SAC, the wrapper's own explorer) train in a ``SubprocVecEnv`` with the
+``"explorer"``) and MoReFree-SAC (stock SAC, the wrapper's own explorer) train in a ``SubprocVecEnv`` with the
 wrappers of their configs, in Python and through RL-Zoo's ``--vec-env subproc``.
 """
 
@@ -120,7 +120,7 @@ def test_morefree_runs_alike_in_dummy_and_subprocess_envs() -> None:
 
 
 def test_sac_port_trains_in_subprocess_envs_with_the_wrappers_explorer() -> None:
-    hyperparams = config("sac")  # the model-free MoReFree port (SAC)
+    hyperparams = config("sac")  # MoReFree-SAC
     assert "TaskRelevantHerReplayBuffer" in hyperparams["replay_buffer_class"]
     env = subprocess_env(hyperparams)
     try:

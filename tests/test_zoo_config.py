@@ -147,7 +147,7 @@ def test_every_file_starts_with_what_it_holds_and_how_to_run_it(path: Path) -> N
 @pytest.mark.parametrize("path", FILES, ids=lambda p: p.stem)
 def test_a_variant_states_only_what_differs(path: Path) -> None:
     """Each variant section merges its env's section (or another section of the file) and restates few keys, unless
-    it is itself the base that other sections merge (the episodic oracle of the SAC port, the post-exploration SAC)."""
+    it is itself the base that other sections merge (the episodic oracle of MoReFree-SAC, the post-exploration SAC)."""
     text = path.read_text()
     anchors = {anchor: key for key, anchor in re.findall(r"^(\S+): &(\w+)", text, re.M)}  # anchor -> its section
     for key in read_zoo_config(path):
@@ -254,7 +254,7 @@ def test_train_a_variant_of_the_world_model_agent_at_a_tiny_size(tmp_path: Path)
 
 def test_plain_rl_zoo3_train_reads_the_env_section_of_an_algorithm_file(tmp_path: Path) -> None:
     """``rl_zoo3 train --algo sac --env GCRL/PointUMazeGoal-v0 -conf zoo_configs/sac.yml``: RL-Zoo picks the exact
-    env-id key (the model-free MoReFree port) and ignores the ``<env id>@<variant>`` keys."""
+    env-id key (MoReFree-SAC) and ignores the ``<env id>@<variant>`` keys."""
     import subprocess
     import sys
 
@@ -266,7 +266,7 @@ def test_plain_rl_zoo3_train_reads_the_env_section_of_an_algorithm_file(tmp_path
     result = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=600)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     saved = tmp_path / "sac" / "GCRL-PointUMazeGoal-v0_1" / "GCRL-PointUMazeGoal-v0" / "config.yml"
-    assert "TaskRelevantHerReplayBuffer" in saved.read_text()  # the port's own buffer: its default section
+    assert "TaskRelevantHerReplayBuffer" in saved.read_text()  # MoReFree-SAC's own buffer: its default section
 
 
 @pytest.mark.parametrize(

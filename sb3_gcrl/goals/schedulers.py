@@ -7,7 +7,7 @@ may learn from every achieved goal through :meth:`GoalScheduler.observe`. Schedu
 * :class:`EvaluationGoalScheduler`: always a goal from rho_g* (MoReFree with alpha = 1 in exploration);
 * :class:`UniformVisitedScheduler`: uniform over visited (binned) achieved goals;
 * :class:`NoveltyScheduler`: count-based novelty over visited bins, thesis Eq. 6.5 (Ch. 6, also the
-  exploratory goal distribution rho_E of our MoReFree port, replacing PEG's world-model planner);
+  exploratory goal distribution rho_E of MoReFree-SAC, replacing PEG's world-model planner);
 * :class:`BackAndForthScheduler`: thesis Algorithm 3, w.p. alpha the pair (g* ~ rho_g*, then g0 ~ rho_0),
   else an exploratory goal from a pluggable scheduler.
 

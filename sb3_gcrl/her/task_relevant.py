@@ -2,10 +2,10 @@
 
 MoReFree trains its goal-conditioned policy on goals drawn from rho_g* with probability alpha/2, from rho_0 with
 probability alpha/2 and from replayed states with probability 1 - alpha (Algorithm 2, line 14). The thesis does
-this with imagined rollouts of a world model; in this model-free port the same bias is put into HER relabeling:
-of the relabeled part of each batch (``her_ratio = n_sampled_goal / (n_sampled_goal + 1)``), a fraction alpha/2
-gets an evaluation goal, alpha/2 an initial-state goal, and the rest the standard strategy (``future`` by
-default). Rewards are recomputed with the env's ``compute_reward`` as in :class:`HerReplayBuffer`.
+this with imagined rollouts of a world model; MoReFree-SAC (:mod:`sb3_gcrl.morefree_sac`) puts the same bias into
+HER relabeling: of the relabeled part of each batch (``her_ratio = n_sampled_goal / (n_sampled_goal + 1)``), a
+fraction alpha/2 gets an evaluation goal, alpha/2 an initial-state goal, and the rest the standard strategy
+(``future`` by default). Rewards are recomputed with the env's ``compute_reward`` as in :class:`HerReplayBuffer`.
 
 alpha is stated once: left out (``task_goal_ratio=None``), it is read from the env's Back-and-Forth scheduler
 (:attr:`sb3_gcrl.wrappers.GoalCommandWrapper.task_goal_alpha`), the same alpha that selects the goals of data
