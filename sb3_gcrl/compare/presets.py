@@ -76,7 +76,7 @@ def variant_methods(algo: str, names: tuple[str, ...], default: str | None = Non
     return tuple(f"{name}={algo}" if name == default else f"{name}={algo}@{name}" for name in names)
 
 
-#: MoReFree (world model), reset-free PEG (the same agent, alpha = 0) and the model-free MoReFree port (SAC) on a
+#: MoReFree (world model), reset-free PEG (the same agent, alpha = 0) and MoReFree-SAC (the model-free port) on a
 #: reset-free task (the default sections of ``morefree.yml``, its CPU presets, and of ``sac.yml``), labelled so that
 #: the two MoReFree agents are never confused
 WORLD_MODEL_METHODS = ("morefree_world_model=morefree", "peg_world_model=morefree@peg", "morefree_sac_port=sac")
@@ -87,7 +87,7 @@ OWN_GOAL_METHOD = "morefree_own_goal=morefree@own_goal"
 #: ``ibc.yml``: 2 x 256 networks and batch 256 instead of the official 3 x 512 and 512 of ``ibc_thesis.yml``, which
 #: train at about 10 env steps/s on one core; MEDAL and R3L as configured, already 2 x 256 and batch 256)
 BASELINE_METHODS = ("ibc=ibc", "medal=medal", "r3l=r3l")
-#: Ch. 3 methods of Fig. 3.4 and the ablations of Sec. 3.5.3: the model-free MoReFree port (SAC, ``morefree``: the
+#: Ch. 3 methods of Fig. 3.4 and the ablations of Sec. 3.5.3: MoReFree-SAC (the model-free port, ``morefree``: the
 #: default section of ``sac.yml``) and its baselines and ablations (variants of ``sac.yml``)
 CH3_METHODS = ("oracle", "naive", "goexplore", "morefree")
 CH3_ABLATIONS = ("wo_bf", "wo_relabel", "alpha1")
@@ -114,17 +114,17 @@ PRESETS: dict[str, Preset] = {
     ),
     "ch3": Preset(
         description="Reset-free PointUMaze: episodic oracle vs naive reset-free vs Go-Explore (alpha = 0) vs "
-        "the model-free MoReFree port (SAC)",
+        "MoReFree-SAC (the model-free port)",
         methods=variant_methods("sac", CH3_METHODS, default="morefree"),
         envs=("GCRL/PointUMazeGoal-v0",),
         seeds=(0, 1, 2),
         n_timesteps=100_000,
         eval_freq=10_000,
         n_eval_episodes=10,
-        thesis="Fig. 3.4-3.5 (PointUMaze panel) at 10% of the thesis's 1e6 steps, model-free port of MoReFree",
+        thesis="Fig. 3.4-3.5 (PointUMaze panel) at 10% of the thesis's 1e6 steps, MoReFree-SAC",
     ),
     "ch3-ablations": Preset(
-        description="Ablations of the model-free MoReFree port (SAC) on reset-free PointUMaze: without "
+        description="Ablations of MoReFree-SAC (the model-free port) on reset-free PointUMaze: without "
         "Back-and-Forth, without task-relevant relabeling, only task goals (alpha = 1)",
         methods=variant_methods("sac", CH3_ABLATIONS),
         envs=("GCRL/PointUMazeGoal-v0",),
@@ -136,7 +136,7 @@ PRESETS: dict[str, Preset] = {
     ),
     "ch3-world-model": Preset(
         description="Reset-free PointUMaze: MoReFree (world model) vs reset-free PEG (the same agent, alpha = 0) vs "
-        "the model-free MoReFree port (SAC), equal env steps, CPU presets; beside them MoReFree's own_goal variant "
+        "MoReFree-SAC (the model-free port), equal env steps, CPU presets; beside them MoReFree's own_goal variant "
         "(not the thesis)",
         methods=(*WORLD_MODEL_METHODS, OWN_GOAL_METHOD),
         envs=("GCRL/PointUMazeGoal-v0",),

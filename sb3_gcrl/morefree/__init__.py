@@ -1,7 +1,7 @@
 """MoReFree on a world model (thesis Ch. 3): the model-based reset-free goal-conditioned agent.
 
-Not to be confused with the model-free port of MoReFree's two mechanisms (SAC/TD3 + HER configs of
-:mod:`sb3_gcrl.wrappers` / :mod:`sb3_gcrl.her`, the "MoReFree-SAC port").
+Not to be confused with MoReFree-SAC (:mod:`sb3_gcrl.morefree_sac`), the model-free port of MoReFree's two
+mechanisms on SAC + HER.
 """
 
 from sb3_gcrl.morefree.buffer import SequenceReplayBuffer

@@ -65,7 +65,7 @@ def morefree_go_explore(
     :param scheduler_kwargs: keyword arguments of the novelty scheduler (``goal_low``, ``goal_high``, ``n_bins``,
         ``tau``, ``within_bin``), the fallback of PEG.
     :param end_go_on_success: end a Go phase when the env reports the commanded goal reached, instead of after
-        H_G steps (Algorithm 1); the wrapper's default for the model-free agents, an ablation here.
+        H_G steps (Algorithm 1); the wrapper's default for MoReFree-SAC, an ablation here.
     :param go_explore_kwargs: other keyword arguments of :class:`~sb3_gcrl.wrappers.GoExploreWrapper`.
     :return: the wrapped env.
     """
