@@ -38,7 +38,7 @@ import pandas as pd
 
 from sb3_gcrl.compare.cli import _hyperparam
 from sb3_gcrl.compare.presets import preset_labels, run_preset, select_methods
-from sb3_gcrl.compare.storage import COMPARISON_FILE
+from sb3_gcrl.compare.run import RunSpec
 
 PRESETS = ("ch3", "ch3-ablations", "ch3-world-model", "ch3-baselines", "ch3-baselines-tabletop")
 
@@ -61,15 +61,22 @@ def first_success(run: pd.DataFrame) -> float:
     return float(hits.min()) if len(hits) else np.nan
 
 
+def run_specs(output: Path) -> list[RunSpec]:
+    """The spec of every run under ``output`` (each run folder's own ``spec.json``: ``comparison.json`` lists only
+    the runs of the last command, which may have trained a subset of the seeds or methods)."""
+    from sb3_gcrl.compare.worker import SPEC_FILE
+
+    return [RunSpec.from_dict(json.loads(path.read_text())) for path in sorted((output / "runs").rglob(SPEC_FILE))]
+
+
 def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
     """One row per finished run: final success, mean success over all evaluations, best evaluation return, env steps
     of the first evaluation with a success, task-relevant share, closest visited goal to rho_g*."""
     from sb3_gcrl.callbacks.visitation import nearest_distances, task_relevant_fraction
-    from sb3_gcrl.compare.run import RunSpec
     from sb3_gcrl.compare.storage import VISITED_FILE
 
     curves = pd.read_csv(output / "curves.csv")
-    specs = [RunSpec.from_dict(spec) for spec in json.loads((output / COMPARISON_FILE).read_text())["specs"]]
+    specs = run_specs(output)
     task = {env_id: task_goals(env_id) for env_id in curves["env"].unique()}
     rows = []
     for (env_id, method, seed), run in curves.groupby(["env", "method", "seed"], sort=False):
@@ -105,12 +112,11 @@ def chapter_table(output: Path, final_evals: int) -> pd.DataFrame:
 def diagnostics_table(output: Path) -> pd.DataFrame:
     """The world-model agents' probes over training (``MoReFreeDiagnosticsCallback`` lines of each run's log):
     one row per run and probe."""
-    from sb3_gcrl.compare.run import RunSpec
     from sb3_gcrl.compare.storage import LOG_FILE
     from sb3_gcrl.morefree.diagnostics import parse_diagnostics
 
     rows = []
-    for spec in (RunSpec.from_dict(s) for s in json.loads((output / COMPARISON_FILE).read_text())["specs"]):
+    for spec in run_specs(output):
         log = output / "runs" / spec.relative_dir / LOG_FILE
         if not log.is_file():
             continue
