@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
+
+import pandas as pd
 
 #: timed phases; the rest of a run's CPU time is "collect" (env steps, acting, the other callbacks, set-up)
 PHASES = ("train", "evaluate", "probe", "checkpoint")
@@ -136,3 +139,63 @@ def time_callbacks(clock: PhaseClock, callbacks: list[Any]) -> None:
     for callback in flat_callbacks(callbacks):
         if (phase := callback_phase(callback)) is not None:
             clock.time_callback(callback, phase)
+
+
+def cost_section(run_times: pd.DataFrame) -> list[str]:
+    """Markdown of a report's "Cost" section: what a run of each method cost, wall and CPU time (medians, ranges and
+    sums over finished runs), and its CPU time by phase where the runs recorded it.
+
+    :param run_times: one row per finished run: ``method``, ``wall_time_s``, ``cpu_time_s`` and ``cpu_<phase>_s``.
+    :return: the section's lines (none without runs).
+    """
+    if not len(run_times):
+        return []
+
+    def seconds(values: pd.Series) -> str:
+        values = values.dropna()
+        if not len(values):
+            return "not recorded"
+        spread = f" ({values.min():,.0f}-{values.max():,.0f})" if len(values) > 1 else ""
+        return f"{values.median():,.0f} s{spread}"
+
+    lines = [
+        "## Cost",
+        "",
+        "Per run, the median (range) over the finished runs, as the run's worker measured it (imports excluded; CPU "
+        "time: the run's process, all threads; runs of earlier versions did not record it).",
+        "",
+        "| method | runs | wall time per run | CPU time per run | CPU time, all runs |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for method, group in run_times.groupby("method", sort=False):
+        total = group["cpu_time_s"].sum(min_count=1)
+        total_text = "not recorded" if math.isnan(total) else f"{total / 3600:.2f} h"
+        if group["cpu_time_s"].isna().any() and not math.isnan(total):
+            total_text += f" ({group['cpu_time_s'].notna().sum()} of {len(group)} runs)"
+        lines.append(
+            f"| {method} | {len(group)} | {seconds(group['wall_time_s'])} | {seconds(group['cpu_time_s'])} "
+            f"| {total_text} |"
+        )
+    lines.append("")
+    split = [f"cpu_{phase}_s" for phase in ALL_PHASES]
+    measured = run_times.dropna(subset=split)
+    if len(measured):
+        lines += [
+            "CPU time per run by phase, median over the runs that recorded it: *train* the gradient updates "
+            "(the algorithm's `train`, a compilation included), *evaluate* the evaluations, *probe* the diagnostics "
+            "callback, *checkpoint* the resumable checkpoints, *collect* the rest (env steps, acting, the other "
+            "callbacks, set-up).",
+            "",
+            f"| method | runs | {' | '.join(ALL_PHASES)} |",
+            "| --- | --- |" + " --- |" * len(ALL_PHASES),
+        ]
+        for method, group in measured.groupby("method", sort=False):
+            total = group["cpu_time_s"].median()
+            cells = []
+            for column in split:
+                value = group[column].median()
+                share = f" ({value / total:.0%})" if total > 0 else ""
+                cells.append(f"{value:,.0f} s{share}")
+            lines.append(f"| {method} | {len(group)} | {' | '.join(cells)} |")
+        lines.append("")
+    return lines

@@ -21,7 +21,7 @@ from sb3_gcrl.analysis.plots import (
     visitation_counts,
 )
 from sb3_gcrl.analysis.statistics import aggregate_scores, probability_of_improvement, run_scores, visitation_entropy
-from sb3_gcrl.compare.costs import ALL_PHASES
+from sb3_gcrl.compare.costs import ALL_PHASES, cost_section
 from sb3_gcrl.compare.run import RunSpec
 from sb3_gcrl.compare.storage import (
     ALL_GOALS_FILE,
@@ -236,61 +236,6 @@ def _aggregate(curves: pd.DataFrame, metrics: dict[str, str]) -> pd.DataFrame:
     )
 
 
-def _cost_section(run_times: pd.DataFrame) -> list[str]:
-    """Markdown: what a run of each method cost, wall and CPU time (medians, ranges and sums over finished runs)."""
-    if not len(run_times):
-        return []
-
-    def seconds(values: pd.Series) -> str:
-        values = values.dropna()
-        if not len(values):
-            return "not recorded"
-        spread = f" ({values.min():,.0f}-{values.max():,.0f})" if len(values) > 1 else ""
-        return f"{values.median():,.0f} s{spread}"
-
-    lines = [
-        "## Cost",
-        "",
-        "Per run, the median (range) over the finished runs, as the run's worker measured it (imports excluded; CPU "
-        "time: the run's process, all threads; runs of earlier versions did not record it).",
-        "",
-        "| method | runs | wall time per run | CPU time per run | CPU time, all runs |",
-        "| --- | --- | --- | --- | --- |",
-    ]
-    for method, group in run_times.groupby("method", sort=False):
-        total = group["cpu_time_s"].sum(min_count=1)
-        total_text = "not recorded" if math.isnan(total) else f"{total / 3600:.2f} h"
-        if group["cpu_time_s"].isna().any() and not math.isnan(total):
-            total_text += f" ({group['cpu_time_s'].notna().sum()} of {len(group)} runs)"
-        lines.append(
-            f"| {method} | {len(group)} | {seconds(group['wall_time_s'])} | {seconds(group['cpu_time_s'])} "
-            f"| {total_text} |"
-        )
-    lines.append("")
-    split = [f"cpu_{phase}_s" for phase in ALL_PHASES]
-    measured = run_times.dropna(subset=split)
-    if len(measured):
-        lines += [
-            "CPU time per run by phase, median over the runs that recorded it: *train* the gradient updates "
-            "(the algorithm's `train`, a compilation included), *evaluate* the evaluations, *probe* the diagnostics "
-            "callback, *checkpoint* the resumable checkpoints, *collect* the rest (env steps, acting, the other "
-            "callbacks, set-up).",
-            "",
-            f"| method | runs | {' | '.join(ALL_PHASES)} |",
-            "| --- | --- |" + " --- |" * len(ALL_PHASES),
-        ]
-        for method, group in measured.groupby("method", sort=False):
-            total = group["cpu_time_s"].median()
-            cells = []
-            for column in split:
-                value = group[column].median()
-                share = f" ({value / total:.0%})" if total > 0 else ""
-                cells.append(f"{value:,.0f} s{share}")
-            lines.append(f"| {method} | {len(group)} | {' | '.join(cells)} |")
-        lines.append("")
-    return lines
-
-
 def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, wall_time_s: float) -> list[Path]:
     """Write ``curves.csv``, ``scores.csv``, ``summary.csv``, ``curves.png`` and ``report.md`` into ``output``
     (and the all-goals files of :func:`_all_goals_outputs` when runs recorded all-goals evaluations).
@@ -354,7 +299,7 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
             last = error.strip().splitlines()[-1] if error.strip() else "unknown error"
             lines.append(f"- {spec.env_id} / {spec.method} / seed {spec.seed}: `{last}` (log: `{log}`)")
         lines.append("")
-    lines += _cost_section(summary.run_times)
+    lines += cost_section(summary.run_times)
     lines.append(f"Wall time of this invocation (resumed runs cost nothing): {wall_time_s:.0f} s.")
     atomic_write_text(output / "report.md", "\n".join(lines) + "\n")
     return [*written, output / "report.md"]
