@@ -41,6 +41,7 @@ from gymnasium import spaces
 from stable_baselines3.common.type_aliases import GymEnv
 from torch.profiler import record_function
 
+import sb3_gcrl.morefree.losses as losses
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.seeding import SeededGeneratorMixin
 from sb3_gcrl.common.validation import (
@@ -51,7 +52,6 @@ from sb3_gcrl.common.validation import (
     check_optional_int,
     check_unit_interval,
 )
-from sb3_gcrl.morefree import losses
 from sb3_gcrl.morefree.acceleration import autocast, compile_functions, native_bfloat16_or_warn
 from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
 from sb3_gcrl.morefree.collection import DEFAULT_ALPHA, MoReFreeCollector
