@@ -20,7 +20,8 @@ from torch.distributions import Normal
 import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.callbacks import ResetFreeCallback
 from sb3_gcrl.envs.growing_tree import GrowingTreeGoalEnv
-from sb3_gcrl.morefree import MoReFree, SequenceReplayBuffer, morefree_go_explore
+from sb3_gcrl.morefree import MoReFree, SequenceReplayBuffer, losses, morefree_go_explore, peg
+from sb3_gcrl.morefree.functional import frozen, lambda_returns, symexp, symlog
 from sb3_gcrl.morefree.goals import PEGScheduler
 from sb3_gcrl.morefree.networks import (
     RSSM,
@@ -29,10 +30,6 @@ from sb3_gcrl.morefree.networks import (
     LatentState,
     TruncatedNormal,
     WorldModel,
-    frozen,
-    lambda_returns,
-    symexp,
-    symlog,
 )
 from sb3_gcrl.wrappers import GOAL_REQUEST_KEY, GoExploreWrapper, ResetFreeWrapper
 
@@ -187,7 +184,7 @@ def test_imagined_rollouts_have_the_right_shapes_and_stay_finite():
     start = post.detach().flatten()
     goals = th.zeros(24, 1)
     with th.no_grad():
-        feats, acts, entropies = model._imagine(start, goals)
+        feats, acts, entropies = model.imagine(start, goals)
     horizon = model.imagination_horizon
     assert feats.shape == (horizon + 1, 48, model.policy.world_model.feat_dim)  # pi_G rows, then pi_E rows
     assert acts.shape == (horizon, 48, 1) and entropies.shape == (horizon, 48)
@@ -196,7 +193,7 @@ def test_imagined_rollouts_have_the_right_shapes_and_stay_finite():
     # longer imagination than trained stays finite too
     model.imagination_horizon = 200
     with th.no_grad():
-        feats, _, _ = model._imagine(start, goals)
+        feats, _, _ = model.imagine(start, goals)
     assert th.isfinite(feats).all()
 
 
@@ -256,12 +253,12 @@ def test_pi_g_trained_in_imagination_reaches_goals_with_an_exact_distance_reward
         start = chain_starts(model, rng, 64)
         goals = symlog(th.as_tensor(rng.uniform(-1.5, 1.5, (128, 1)), dtype=th.float32))
         with frozen(wm):
-            feats, _, entropies = model._imagine(start, goals)
+            feats, _, entropies = model.imagine(start, goals)
             feats_g = feats[:, :128]
             rewards = -(wm.decode_goal(feats_g[1:]) - goals).abs().squeeze(-1)
-            returns = model._returns(feats_g, rewards, policy.critic_g_target, goals)
-            actor_loss = model._actor_loss(returns, entropies[:, :128])
-        critic_loss = model._critic_loss(policy.critic_g, feats_g, returns, goals)
+            returns = model.lambda_returns(feats_g, rewards, policy.critic_g_target, goals)
+            actor_loss = losses.actor_loss(returns, entropies[:, :128], model.gamma, model.entropy_coef)
+        critic_loss = losses.critic_loss(policy.critic_g, feats_g, returns, goals, model.gamma)
         model._apply(actor_loss + critic_loss, ("actor_g", "critic_g"))
     after = imagined_final_distance(model, test_start, test_goals)
     assert after < 0.4 * before, (before, after)
@@ -371,6 +368,22 @@ def test_imagination_goal_proportions_match_alpha():
     rows = model.replay_buffer.pos[0]
     counts = np.bincount(np.searchsorted(np.sort(stored), draws[:, -1]), minlength=rows)
     assert counts.min() > 0
+
+
+def test_goal_draws_with_their_own_generator_leave_the_agents_generator_alone():
+    """The probes draw goals as training does, from a generator they pass, not the agent's."""
+    model = tiny(make_vec_env("GCRL/GrowingTreeGoal-v0", n_envs=1, seed=0), imagination_alpha=0.5)
+    model.learn(30)
+    state = model._rng.bit_generator.state
+    goals, kinds = model.sample_imagination_goals(200, rng=np.random.default_rng(3))
+    again, kinds_again = model.sample_imagination_goals(200, rng=np.random.default_rng(3))
+    task = model.task_goal_samples("evaluation", 4, np.random.default_rng(3))
+    assert model._rng.bit_generator.state == state
+    np.testing.assert_array_equal(goals, again)
+    np.testing.assert_array_equal(kinds, kinds_again)
+    assert set(np.unique(kinds)) == {0, 1, 2} and task.shape == (4, 1)
+    model.sample_imagination_goals(10)  # without one: the agent's own, as in training
+    assert model._rng.bit_generator.state != state
 
 
 def test_replayed_imagination_goals_come_from_the_batch_or_the_buffer():
@@ -825,12 +838,12 @@ def test_peg_planner_converges_on_the_goal_the_explorer_values_most(monkeypatch:
     best = np.array([1.0, 1.0])
     scored = []
 
-    def fitness(start: LatentState, candidates: np.ndarray, horizon: int) -> th.Tensor:
+    def fitness(policy: Any, start: LatentState, candidates: np.ndarray, horizon: int, *settings: float) -> th.Tensor:
         assert (candidates >= -2.5).all() and (candidates <= 2.5).all()  # clipped to the desired_goal box
         scored.append(len(candidates))
         return -th.as_tensor(np.linalg.norm(candidates - best, axis=-1))
 
-    monkeypatch.setattr(model, "_peg_fitness", fitness)
+    monkeypatch.setattr(peg, "peg_fitness", fitness)
     obs = {k: v[0] for k, v in env.reset().items()}
     goals = np.array([model.plan_exploratory_goal(obs, np.random.default_rng(s)) for s in range(5)])
     assert scored == [200] * 25  # 5 plans x 5 iterations of 200 candidates
@@ -847,7 +860,7 @@ def test_peg_fitness_sums_the_explorers_lambda_returns_along_pi_gs_imagined_path
     candidates = np.array([[-1.0], [0.5], [1.5]])
     th.manual_seed(0)
     with th.no_grad():
-        fitness = model._peg_fitness(start, candidates, horizon=4)
+        fitness = peg.peg_fitness(policy, start, candidates, 4, model.gamma, model.lambda_, model.expl_reward_scale)
     th.manual_seed(0)  # the same draws, by hand
     with th.no_grad():
         goals = symlog(th.as_tensor(candidates, dtype=th.float32))
@@ -920,8 +933,8 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
         feats = th.stack([feat, 2 * feat, 3 * feat])
         return feats, th.zeros(2, len(feat), 1), th.zeros(2, len(feat))
 
-    monkeypatch.setattr(model, "_imagine", imagine)
-    monkeypatch.setattr(model, "_goal_rewards", lambda achieved, goals: th.zeros(achieved.shape[0] - 1, len(goals)))
+    monkeypatch.setattr(model, "imagine", imagine)
+    monkeypatch.setattr(model, "goal_rewards", lambda achieved, goals: th.zeros(achieved.shape[0] - 1, len(goals)))
     monkeypatch.setattr(model.policy.critic_g, "forward", lambda feat, goal: 2 * feat[..., 0])
     monkeypatch.setattr(model.policy.critic_g_target, "forward", lambda feat, goal: 2 * feat[..., 0])
     model.gamma, model.lambda_ = 1.0, 1.0
@@ -954,7 +967,7 @@ def test_goal_holding_compares_pi_g_with_staying_at_the_goal_by_hand(monkeypatch
         return latent_at(latent.deter[:, 0] + 0.1 * action[:, 0])
 
     exact = lambda a, g: (symexp(a) - symexp(g)).abs().sum(-1)  # noqa: E731  (D reads symlog goals)
-    monkeypatch.setattr(model, "_task_goal_samples", lambda kind, n: np.full((n, 1), 0.5, dtype=np.float32))
+    monkeypatch.setattr(model, "task_goal_samples", lambda kind, n, rng=None: np.full((n, 1), 0.5, dtype=np.float32))
     monkeypatch.setattr(policy, "hold_latent", lambda states, deterministic=False: latent_at(states[:, -1]))
     monkeypatch.setattr(policy.world_model.rssm, "img_step", img_step)
     monkeypatch.setattr(policy.world_model, "decode_goal", lambda feat: symlog(feat[..., :1]))

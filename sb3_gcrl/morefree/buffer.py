@@ -39,9 +39,13 @@ class SequenceReplayBuffer:
         self.pos = np.zeros(n_envs, dtype=np.int64)
         self.full = np.zeros(n_envs, dtype=bool)
 
+    def stored(self) -> np.ndarray:
+        """Rows stored per env ``(n_envs,)``: the ring's size once full, else its write position."""
+        return np.where(self.full, self.rows, self.pos)
+
     def size(self) -> int:
         """Rows stored over all envs."""
-        return int(sum(self.rows if f else p for p, f in zip(self.pos, self.full)))
+        return int(self.stored().sum())
 
     def add(self, env: int, state: np.ndarray, prev_action: np.ndarray | None) -> None:
         """Append one row to env ``env``'s stream (``prev_action=None`` marks a start, ``is_first``)."""
@@ -61,7 +65,7 @@ class SequenceReplayBuffer:
 
     def can_sample(self, length: int) -> bool:
         """Whether a chunk of ``length`` rows exists."""
-        return any(self.rows >= length if f else p >= length for p, f in zip(self.pos, self.full))
+        return bool((self.stored() >= length).any())
 
     def sample(self, batch: int, length: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``batch`` chunks of ``length`` consecutive rows, uniform over valid starts; time-major arrays.
@@ -70,16 +74,16 @@ class SequenceReplayBuffer:
 
         :return: states ``(L, B, state_dim)``, previous actions ``(L, B, action_dim)``, is_first ``(L, B)``.
         """
-        valid = [i for i in range(self.n_envs) if (self.rows if self.full[i] else self.pos[i]) >= length]
-        if not valid:
+        stored = self.stored()
+        valid = np.flatnonzero(stored >= length)
+        if not valid.size:
             raise RuntimeError(f"no chunk of {length} steps stored yet")
         # starts per env: a full ring may not cross its write position
-        counts = np.array([(self.rows if self.full[i] else self.pos[i]) - length + 1 for i in valid])
-        envs = rng.choice(np.array(valid), size=batch, p=counts / counts.sum())
+        counts = stored[valid] - length + 1
+        envs = rng.choice(valid, size=batch, p=counts / counts.sum())
         starts = np.empty(batch, dtype=np.int64)
         for k, env in enumerate(envs):
-            n_starts = (self.rows if self.full[env] else self.pos[env]) - length + 1
-            offset = rng.integers(0, n_starts)
+            offset = rng.integers(0, stored[env] - length + 1)
             # in a full ring the oldest row sits at the write position
             starts[k] = (self.pos[env] + offset) % self.rows if self.full[env] else offset
         index = (starts[:, None] + np.arange(length)[None, :]) % self.rows
@@ -108,7 +112,7 @@ class SequenceReplayBuffer:
         :return: earlier goals ``(n, goal_dim)``, later goals ``(n, goal_dim)``, gaps ``(n,)`` and a validity mask
             ``(n,)``: False where the stream is shorter than the gap or a physical reset lies between the two.
         """
-        sizes = np.array([self.rows if f else p for p, f in zip(self.pos, self.full)])
+        sizes = self.stored()
         if sizes.sum() == 0:
             raise RuntimeError("the replay buffer is empty")
         envs = rng.choice(self.n_envs, size=n, p=sizes / sizes.sum())
@@ -124,7 +128,7 @@ class SequenceReplayBuffer:
 
     def sample_states(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` stored state vectors, uniform over the whole buffer (the replay-state goals of Sec. 3.4.2)."""
-        sizes = np.array([self.rows if f else p for p, f in zip(self.pos, self.full)])
+        sizes = self.stored()
         if sizes.sum() == 0:
             raise RuntimeError("the replay buffer is empty")
         flat = rng.integers(0, sizes.sum(), size=n)

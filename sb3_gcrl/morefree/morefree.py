@@ -22,30 +22,27 @@ pi_E (the wrapper, built with ``explore_policy="agent"``, executes it). Explorat
 answers with :meth:`MoReFree.plan_exploratory_goal` (PEG's cross-entropy planner). The agent reads and answers the
 wrappers only through ``VecEnv.get_attr`` / ``env_method``, so any VecEnv works (``SubprocVecEnv`` included).
 docs/morefree.md lists where this departs from PEG and why.
+
+This module holds the agent's settings and its training step; the learn loop and data collection are its base class
+(:mod:`~sb3_gcrl.morefree.collection`), the losses pure functions (:mod:`~sb3_gcrl.morefree.losses`), PEG's planner
+:mod:`~sb3_gcrl.morefree.peg`, the goal and pair draws :mod:`~sb3_gcrl.morefree.sampling`, and bfloat16 and
+``torch.compile`` :mod:`~sb3_gcrl.morefree.acceleration`.
 """
 
 from __future__ import annotations
 
-import sys
-import time
-import warnings
 from collections.abc import Callable
-from contextlib import AbstractContextManager, nullcontext
-from typing import Any, ClassVar, TypeVar
+from contextlib import AbstractContextManager
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
-from stable_baselines3.common.utils import safe_mean
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
+from stable_baselines3.common.type_aliases import GymEnv
 from torch.profiler import record_function
 
-from sb3_gcrl.common.hardware import describe_cpu, native_bfloat16
-from sb3_gcrl.common.runs import warn_if_learning_never_starts
-from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
+import sb3_gcrl.morefree.losses as losses
+from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.seeding import SeededGeneratorMixin
 from sb3_gcrl.common.validation import (
     check_bool,
@@ -55,19 +52,16 @@ from sb3_gcrl.common.validation import (
     check_optional_int,
     check_unit_interval,
 )
-from sb3_gcrl.goals.task_goals import TaskRelevantGoals
+from sb3_gcrl.morefree.acceleration import autocast, compile_functions, native_bfloat16_or_warn
 from sb3_gcrl.morefree.buffer import SequenceReplayBuffer
-from sb3_gcrl.morefree.networks import LatentState, frozen, lambda_returns, symlog
-from sb3_gcrl.morefree.policies import MoReFreePolicy, state_vector
-from sb3_gcrl.wrappers.go_explore import ACTING_GOAL, GOAL_REQUEST_KEY
-
-SelfMoReFree = TypeVar("SelfMoReFree", bound="MoReFree")
-
-#: thesis Sec. 3.7.3: alpha = 0.2 for all tasks
-DEFAULT_ALPHA = 0.2
+from sb3_gcrl.morefree.collection import DEFAULT_ALPHA, MoReFreeCollector
+from sb3_gcrl.morefree.functional import frozen, symlog
+from sb3_gcrl.morefree.networks import LatentState
+from sb3_gcrl.morefree.policies import MoReFreePolicy
+from sb3_gcrl.morefree.sampling import imagination_goals, replay_pairs
 
 
-class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
+class MoReFree(SeededGeneratorMixin, ModelFileMixin, MoReFreeCollector):
     """Model-based reset-free goal-conditioned agent (MoReFree, thesis Ch. 3), PEG's state-input agent.
 
     Defaults are PEG's point-maze settings (the thesis preset); the CPU presets are the sections
@@ -254,14 +248,13 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
         self.replay_buffer = SequenceReplayBuffer(
             self.buffer_size, self.n_envs, self.policy.state_dim, action_dim, goal_dim=self.policy.goal_dim
         )
-        self._latent: LatentState | None = None
-        self._prev_action: th.Tensor | None = None
-        self._stream_obs: Any = None
-        self._task_goals: TaskRelevantGoals | None = None
-        #: envs whose goal requests the agent answers (set during learn), whether the envs report acting_policy
-        self._planned_envs: list[int] = []
+        self._latent = None
+        self._prev_action = None
+        self._stream_obs = None
+        self._task_goals = None
+        self._planned_envs = []
         self._reads_acting_policy = False
-        self._go_steps: int | None = None
+        self._go_steps = None
         self._compiled: dict[str, Callable[..., Any]] | None = None
         self._bfloat16: bool | None = None  # mixed_precision on this device: decided on the first training step
         self._alpha = DEFAULT_ALPHA if self.imagination_alpha is None else float(self.imagination_alpha)
@@ -282,89 +275,13 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", *(f"policy.{name}_optimizer" for name in MoReFreePolicy.OPTIMIZERS)], []
 
-    def save_replay_buffer(self, path: str) -> None:
-        """Pickle the sequence replay buffer, atomically (a trusted file only can be loaded back)."""
-        atomic_save_to_pkl(path, self.replay_buffer, self.verbose)
-
-    def load_replay_buffer(self, path: str, truncate_last_traj: bool = True) -> None:
-        """Load a buffer saved by :meth:`save_replay_buffer` (pickle: load trusted files only).
-
-        :param path: the pickled buffer.
-        :param truncate_last_traj: SB3's signature (RL-Zoo passes it); nothing to truncate here: the next ``learn``
-            starts a new stream (``is_first``), so the trajectory cut off by the save is never continued.
-        """
-        from stable_baselines3.common.save_util import load_from_pkl
-
-        buffer = load_from_pkl(path, self.verbose)
-        if not isinstance(buffer, SequenceReplayBuffer) or buffer.n_envs != self.n_envs:
-            raise ValueError(f"{path} does not hold a SequenceReplayBuffer for {self.n_envs} env(s)")
-        self.replay_buffer = buffer
-
-    # --- the Go/Explore wrapper's public interface --------------------------------------------------------------
-    def _base_vec_env(self) -> VecEnv:
-        """The training VecEnv under its VecEnv wrappers (it holds the reset infos)."""
-        env = self.env
-        assert env is not None
-        return env.unwrapped if isinstance(env, VecEnvWrapper) else env  # type: ignore[return-value]
-
-    def _attach(self) -> None:
-        """Declare the agent as the goal planner of the envs that take planned goals; read alpha and H_G; set up
-        task goals."""
-        env = self.env
-        assert env is not None
-        self._reads_acting_policy = env.has_attr("acting_policy")
-        self._planned_envs = []
-        if env.has_attr("takes_planned_goals"):
-            self._planned_envs = [i for i, takes in enumerate(env.get_attr("takes_planned_goals")) if takes]
-        if self._planned_envs:
-            env.env_method("set_goal_planning", True, indices=self._planned_envs)
-        if self.imagination_alpha is None:
-            alpha = env.get_attr("task_goal_alpha")[0] if env.has_attr("task_goal_alpha") else None
-            self._alpha = DEFAULT_ALPHA if alpha is None else float(alpha)
-        self._go_steps = int(env.get_attr("go_steps")[0]) if env.has_attr("go_steps") else None
-        if not env.has_attr("sample_task_goals") and self._task_goals is None:
-            base = self._base_vec_env()
-            source = base.envs[0] if isinstance(base, DummyVecEnv) else env
-            self._task_goals = TaskRelevantGoals(source, self.policy.goal_dim)  # type: ignore[arg-type]
-
-    def _detach(self) -> None:
-        """Stop answering goal requests (the envs take their fallback goals until the next ``learn``)."""
-        if self._planned_envs and self.env is not None:
-            self.env.env_method("set_goal_planning", False, indices=self._planned_envs)
-
-    def _phases(self) -> list[str]:
-        """Per env, ``"explore"`` where the next step is an Explore-phase step (pi_E acts), else ``"go"``."""
-        assert self.env is not None
-        if not self._reads_acting_policy:
-            return ["go"] * self.n_envs
-        return ["go" if acting == ACTING_GOAL else "explore" for acting in self.env.get_attr("acting_policy")]
-
-    def _answer_goal_requests(self, new_obs: dict[str, np.ndarray], dones: np.ndarray) -> None:
-        """Plan the goals the envs asked for at the resets of this step and write them into ``new_obs``.
-
-        Each request carries the observation and the env's generator; the plan draws from that generator (and the
-        env continues from it), so the run is the same in a ``DummyVecEnv`` and a ``SubprocVecEnv``.
-        """
-        env = self.env
-        assert env is not None
-        reset_infos = self._base_vec_env().reset_infos
-        for i in np.flatnonzero(dones):
-            if not reset_infos[i].get(GOAL_REQUEST_KEY, False):
-                continue
-            obs, rng = env.env_method("goal_request", indices=[i])[0]
-            goal = self.plan_exploratory_goal(obs, rng)
-            commanded = env.env_method("answer_goal_request", goal, rng, indices=[i])[0]
-            new_obs["desired_goal"][i] = commanded["desired_goal"]
-
     # --- task-relevant and imagination goals ---------------------------------------------------------------------
-    def _task_goal_samples(self, kind: str, n: int) -> np.ndarray:
-        assert self.env is not None
-        if self._task_goals is None:
-            return np.asarray(self.env.env_method("sample_task_goals", kind, n, indices=[0])[0], dtype=np.float32)
-        return self._task_goals.sample(kind, self._rng, n).astype(np.float32)  # type: ignore[arg-type]
-
     def sample_imagination_goals(
-        self, n: int, batch_goals: np.ndarray | None = None, own_goals: np.ndarray | None = None
+        self,
+        n: int,
+        batch_goals: np.ndarray | None = None,
+        own_goals: np.ndarray | None = None,
+        rng: np.random.Generator | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Goals of the imagined pi_G rollouts (thesis Sec. 3.4.2, Algorithm 2 line 14).
 
@@ -372,196 +289,59 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
         :param batch_goals: achieved goals of the training batch ``(m, goal_dim)``, the replayed goals' pool with
             ``replay_goals="batch"`` (``None``: drawn from the whole buffer).
         :param own_goals: each start's own achieved goal ``(n, goal_dim)``, for ``own_goal_fraction``.
+        :param rng: the generator of the draws (``None``: the agent's own, as in training).
         :return: goals ``(n, goal_dim)`` and their kinds ``(n,)``: 0 rho_0 (w.p. alpha/2), 1 rho_g* (alpha/2),
             2 replayed states (1 - alpha; not HER's future states), 3 the start's own achieved goal (a share
             ``own_goal_fraction`` of the replayed ones).
         """
-        alpha = self._alpha
-        kinds = self._rng.choice(3, size=n, p=[alpha / 2, alpha / 2, 1 - alpha])
-        if self.own_goal_fraction > 0.0:
-            if own_goals is None:
-                raise ValueError("own_goal_fraction > 0 needs each start's own achieved goal (own_goals)")
-            kinds[(kinds == 2) & (self._rng.random(n) < self.own_goal_fraction)] = 3
-        goal_dim = self.policy.goal_dim
-        goals = np.empty((n, goal_dim), dtype=np.float32)
-        for kind, name in ((0, "initial"), (1, "evaluation")):
-            mask = kinds == kind
-            if mask.any():
-                goals[mask] = self._task_goal_samples(name, int(mask.sum())).reshape(-1, goal_dim)
-        mask = kinds == 2
-        if mask.any():
-            if self.replay_goals == "batch" and batch_goals is not None:
-                pool = batch_goals.reshape(-1, goal_dim)
-                goals[mask] = pool[self._rng.choice(len(pool), int(mask.sum()), replace=int(mask.sum()) > len(pool))]
-            else:
-                goals[mask] = self.replay_buffer.sample_states(int(mask.sum()), self._rng)[:, -goal_dim:]
-        mask = kinds == 3
-        if mask.any():
-            goals[mask] = np.asarray(own_goals).reshape(n, goal_dim)[mask]
-        return goals, kinds
+        rng = self._rng if rng is None else rng
+        return imagination_goals(
+            n,
+            self._alpha,
+            lambda kind, k: self.task_goal_samples(kind, k, rng),
+            self.replay_buffer,
+            rng,
+            self.replay_goals,
+            self.own_goal_fraction,
+            batch_goals,
+            own_goals,
+        )
 
-    def _goal_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """The box PEG's planner searches: the ``desired_goal`` space, or the span of the replayed achieved goals
-        (padded by 10% each side) where that space is unbounded."""
-        space = self.observation_space["desired_goal"]  # type: ignore[index]
-        low, high = space.low.reshape(-1).astype(np.float64), space.high.reshape(-1).astype(np.float64)
-        if np.isfinite(low).all() and np.isfinite(high).all():
-            return low, high
-        visited = self.replay_buffer.achieved_goals().astype(np.float64)
-        lo, hi = visited.min(0), visited.max(0)
-        pad = 0.1 * np.maximum(hi - lo, 1e-3)
-        return np.where(np.isfinite(low), low, lo - pad), np.where(np.isfinite(high), high, hi + pad)
+    # --- imagination (public, for probes) ---------------------------------------------------------------------
+    def imagine(self, start: LatentState, goals: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """pi_G (toward ``goals``) and pi_E imagined from the same starts for ``imagination_horizon`` steps, as in
+        training (:func:`~sb3_gcrl.morefree.losses.imagine`: rows ``[:N]`` follow pi_G, rows ``[N:]`` pi_E).
 
-    def _peg_fitness(self, start: LatentState, candidates: np.ndarray, horizon: int) -> th.Tensor:
-        """PEG's score of candidate goals: pi_G is imagined from ``start`` toward each for ``horizon`` steps; the
-        score sums, over the imagined path, the lambda-returns of pi_E's intrinsic reward (the ensemble's
-        disagreement) bootstrapped from V_E (PEG's ``cost_use_p2e_value``)."""
-        policy = self.policy
-        rssm = policy.world_model.rssm
-        goals = symlog(th.as_tensor(candidates, dtype=th.float32, device=self.device))
-        latent = start.expand(len(candidates))
-        feats, actions = [latent.feat], []
-        for _ in range(horizon):
-            action, _ = policy.actor_g.act(latent.feat, goals)
-            latent = rssm.img_step(latent, action)
-            feats.append(latent.feat)
-            actions.append(action)
-        feat, action = th.stack(feats), th.stack(actions)
-        rewards = self.expl_reward_scale * policy.ensemble.disagreement(feat[:-1], action)
-        returns = lambda_returns(rewards, policy.critic_e_target(feat), self.gamma, self.lambda_)
-        return returns.sum(0)
-
-    def plan_exploratory_goal(self, obs: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray | None:
-        """PEG's exploratory goal (Hu et al., 2023): cross-entropy search over goal space for the goal whose imagined
-        pi_G path is worth most to the explorer.
-
-        A diagonal Gaussian starts at the env's achieved goal with half the goal box as std; each of
-        ``peg_iterations`` rounds scores ``peg_samples`` goals drawn from it (clipped to the box, see
-        :meth:`_peg_fitness`, imagined from the env's current latent) and refits it to the best
-        ``peg_elite_fraction``. The goal is a draw from the final Gaussian, as in PEG.
-
-        :param obs: the env's current observation (one env).
-        :param rng: the scheduler's generator (candidate draws).
-        :return: the goal, or None before training starts.
+        :param start: flat imagination start states ``(N, ...)``.
+        :param goals: symlog goals ``(N, G)`` of pi_G.
+        :return: features ``(H + 1, 2N, F)``, actions ``(H, 2N, A)``, entropies ``(H, 2N)``.
         """
-        if self.num_timesteps < self.learning_starts or self.replay_buffer.size() == 0:
-            return None
         policy = self.policy
-        low, high = self._goal_box()
-        mean = np.asarray(obs["achieved_goal"], dtype=np.float64).reshape(-1)
-        std = 0.5 * (high - low)
-        n_elite = max(2, int(round(self.peg_elite_fraction * self.peg_samples)))
-        horizon = self.peg_horizon or self._go_steps or self.imagination_horizon
-        with th.no_grad():
-            state = th.as_tensor(state_vector(obs), device=self.device).reshape(1, -1)
-            start = policy.hold_latent(state)
-            for _ in range(self.peg_iterations):
-                candidates = np.clip(mean + std * rng.standard_normal((self.peg_samples, mean.size)), low, high)
-                fitness = self._peg_fitness(start, candidates, horizon)
-                elite = candidates[th.topk(fitness, n_elite).indices.cpu().numpy()]
-                mean, std = elite.mean(0), np.sqrt(elite.var(0) + 1e-6)
-        return np.clip(mean + std * rng.standard_normal(mean.size), low, high)
+        return losses.imagine(
+            policy.world_model.rssm, policy.actor_g, policy.actor_e, start, goals, self.imagination_horizon
+        )
 
-    # --- acting ------------------------------------------------------------------------------------------------
-    def _start_streams(self) -> None:
-        """Begin every env's replay stream and latent state at the current observations (a physical start)."""
-        assert self._last_obs is not None and isinstance(self._last_obs, dict)
-        states = state_vector(self._last_obs)
-        for i in range(self.n_envs):
-            self.replay_buffer.add(i, states[i], None)
-            self._record_reset(self._last_obs, i)
-        action_dim = int(np.prod(self.action_space.shape))
-        self._latent = self.policy.world_model.rssm.initial(self.n_envs, self.device)
-        self._prev_action = th.zeros(self.n_envs, action_dim, device=self.device)
-        self._stream_obs = self._last_obs
+    def goal_rewards(self, achieved: th.Tensor, goals: th.Tensor) -> th.Tensor:
+        """pi_G's rewards ``-D(achieved goal of s_{t+1}, g)`` ``(H, N)`` along imagined paths, from their decoded
+        achieved goals ``(H + 1, N, G)`` (:func:`~sb3_gcrl.morefree.losses.goal_rewards`).
 
-    def _record_reset(self, obs: dict[str, np.ndarray], i: int) -> None:
-        if self._task_goals is not None and not self._task_goals.declared:
-            self._task_goals.record_reset({k: obs[k][i] for k in ("achieved_goal", "desired_goal")})
-
-    def _act(self, obs: dict[str, np.ndarray], phases: list[str]) -> np.ndarray:
-        """Actions in [-1, 1]: filter the latent with the new observation, then pi_G (Go) or pi_E (Explore)."""
-        assert self._latent is not None and self._prev_action is not None
-        policy = self.policy
-        with th.no_grad():
-            states, goals = policy.states_to_tensor(obs)
-            self._latent = policy.filter(self._latent, self._prev_action, states)
-            if self.num_timesteps < self.learning_starts:
-                actions = self._rng.uniform(-1, 1, (self.n_envs, *self.action_space.shape)).astype(np.float32)
-                return actions
-            feat = self._latent.feat
-            if all(p == "explore" for p in phases):
-                return policy.actor_e.act(feat)[0].cpu().numpy()
-            actions = policy.actor_g.act(feat, goals)[0]
-            if "explore" in phases:
-                explore = th.as_tensor([p == "explore" for p in phases], device=self.device).unsqueeze(-1)
-                actions = th.where(explore, policy.actor_e.act(feat)[0], actions)
-        return actions.cpu().numpy()
-
-    def _store(
-        self, new_obs: dict[str, np.ndarray], scaled: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
-    ) -> None:
-        """Append the step to the replay streams (executed actions) and restart streams at physical resets."""
-        assert self._prev_action is not None and self._latent is not None and self.env is not None
-        states = state_vector(new_obs)
-        executed = scaled.copy()
-        for i, info in enumerate(infos):
-            if "executed_action" in info:
-                executed[i] = self.policy.scale_action(np.asarray(info["executed_action"], dtype=np.float32))
-        self._prev_action = th.as_tensor(executed, device=self.device)
-        for i in range(self.n_envs):
-            if not dones[i]:
-                self.replay_buffer.add(i, states[i], executed[i])
-                continue
-            terminal = infos[i].get("terminal_observation")
-            if terminal is not None:
-                self.replay_buffer.add(i, state_vector(terminal), executed[i])
-            physical = self._base_vec_env().reset_infos[i].get("physical_reset", True)
-            if physical:
-                self.replay_buffer.add(i, states[i], None)
-                self._record_reset(new_obs, i)
-                self._prev_action[i] = 0.0
-                self._latent.deter[i] = 0.0
-                self._latent.stoch[i] = 0.0
-
-    def collect_rollouts(self, callback: BaseCallback, n_steps: int, log_interval: int | None) -> bool:
-        """Step the envs ``n_steps`` times (one training interval); False when a callback stops training.
-
-        :param callback: the learn callback.
-        :param n_steps: vectorised env steps.
-        :param log_interval: dump the logs every ``log_interval`` finished episodes.
-        :return: whether to continue.
+        :param achieved: symlog achieved goals along the paths.
+        :param goals: symlog goals ``(N, G)``.
         """
-        env = self.env
-        assert env is not None and self._last_obs is not None
-        callback.on_rollout_start()
-        for _ in range(n_steps):
-            obs = self._last_obs
-            assert isinstance(obs, dict)
-            scaled = self._act(obs, self._phases())
-            actions = self.policy.unscale_action(scaled)
-            new_obs, rewards, dones, infos = env.step(actions)
-            if self._planned_envs and dones.any():
-                self._answer_goal_requests(new_obs, dones)  # type: ignore[arg-type]
-            self.num_timesteps += env.num_envs
-            callback.update_locals(locals())
-            if not callback.on_step():
-                self._last_obs = new_obs  # type: ignore[assignment]
-                self._store(new_obs, scaled, dones, infos)  # type: ignore[arg-type]
-                self._stream_obs = new_obs
-                callback.on_rollout_end()
-                return False
-            self._update_info_buffer(infos, dones)
-            self._store(new_obs, scaled, dones, infos)  # type: ignore[arg-type]
-            self._last_obs = self._stream_obs = new_obs  # type: ignore[assignment]
-            self._update_current_progress_remaining(self.num_timesteps, self._total_timesteps)
-            for done in dones:
-                if done:
-                    self._episode_num += 1
-                    if log_interval is not None and self._episode_num % log_interval == 0:
-                        self.dump_logs()
-        callback.on_rollout_end()
-        return True
+        return losses.goal_rewards(self.policy.distance, achieved, goals)
+
+    def lambda_returns(
+        self, feats: th.Tensor, rewards: th.Tensor, target: th.nn.Module, goals: th.Tensor | None
+    ) -> th.Tensor:
+        """Lambda-returns ``(H, N)`` of imagined states ``feats (H + 1, N, F)`` with the agent's ``gamma`` and
+        ``lambda_``, bootstrapped from a slow critic (:func:`~sb3_gcrl.morefree.losses.bootstrapped_returns`).
+
+        :param feats: latent features along the paths.
+        :param rewards: ``(H, N)`` rewards.
+        :param target: the slow critic (``policy.critic_g_target`` or ``policy.critic_e_target``).
+        :param goals: symlog goals ``(N, G)`` of V_G, None for V_E.
+        """
+        return losses.bootstrapped_returns(feats, rewards, target, goals, self.gamma, self.lambda_)
 
     # --- training ----------------------------------------------------------------------------------------------
     def _apply(self, loss: th.Tensor, learners: tuple[str, ...], skip: tuple[str, ...] = ()) -> None:
@@ -579,61 +359,6 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
             th.nn.utils.clip_grad_norm_(params, policy.grad_clip, foreach=True)
             optimizer.step()
 
-    def _imagine(self, start: LatentState, goals: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
-        """Roll pi_G (toward ``goals``) and pi_E from the same starts through the world model, in one batch.
-
-        Rows ``[:N]`` of the outputs follow pi_G, rows ``[N:]`` pi_E; each step is one RSSM prior step for both.
-
-        :param start: flat imagination start states ``(N, ...)`` (detached).
-        :param goals: symlog goals ``(N, G)`` of pi_G.
-        :return: features ``(H + 1, 2N, F)``, actions ``(H, 2N, A)`` (``actions[t]`` is taken in state ``t``),
-            entropies ``(H, 2N)``.
-        """
-        policy = self.policy
-        rssm = policy.world_model.rssm
-        n = goals.shape[0]
-        latent = LatentState(*(th.cat([x, x]) for x in start))
-        feats, actions, entropies = [latent.feat], [], []
-        for _ in range(self.imagination_horizon):
-            feat = latent.feat.detach()
-            action_g, entropy_g = policy.actor_g.act(feat[:n], goals)
-            action_e, entropy_e = policy.actor_e.act(feat[n:])
-            action = th.cat([action_g, action_e])
-            latent = rssm.img_step(latent, action)
-            feats.append(latent.feat)
-            actions.append(action)
-            entropies.append(th.cat([entropy_g, entropy_e]))
-        return th.stack(feats), th.stack(actions), th.stack(entropies)
-
-    def _returns(
-        self, feats: th.Tensor, rewards: th.Tensor, target: th.nn.Module, goals: th.Tensor | None
-    ) -> th.Tensor:
-        """Lambda-returns ``(H, N)`` of imagined states ``feats (H + 1, N, F)``, bootstrapped from a slow critic."""
-        expand = None if goals is None else goals.unsqueeze(0).expand(feats.shape[0], *goals.shape)
-        return lambda_returns(rewards, target(feats, expand), self.gamma, self.lambda_)
-
-    def _actor_loss(self, returns: th.Tensor, entropies: th.Tensor) -> th.Tensor:
-        """DreamerV2's dynamics-backpropagation objective: discounted lambda-returns plus the entropy bonus."""
-        discount = self._discounts(returns)
-        return -(discount * (returns + self.entropy_coef * entropies)).mean()
-
-    def _critic_loss(
-        self, critic: th.nn.Module, feats: th.Tensor, returns: th.Tensor, goals: th.Tensor | None
-    ) -> th.Tensor:
-        """Discounted regression of the critic on the (detached) lambda-returns of the imagined states."""
-        expand = None if goals is None else goals.unsqueeze(0).expand(returns.shape[0], *goals.shape)
-        prediction = critic(feats[:-1].detach(), expand)
-        return (self._discounts(returns) * (prediction - returns.detach()).pow(2)).mean()
-
-    def _discounts(self, returns: th.Tensor) -> th.Tensor:
-        steps = returns.shape[0]
-        return self.gamma ** th.arange(steps, device=returns.device, dtype=returns.dtype).unsqueeze(-1)
-
-    def _goal_rewards(self, achieved: th.Tensor, goals: th.Tensor) -> th.Tensor:
-        """pi_G's reward ``-D(achieved goal of s_{t+1}, g)`` from the decoded achieved goals ``(H + 1, N, G)`` of an
-        imagined path: ``(H, N)``."""
-        return -self.policy.distance(achieved[1:], goals.unsqueeze(0).expand(achieved.shape[0] - 1, *goals.shape))
-
     @property
     def distance_unit(self) -> int:
         """Steps that make distance 1: ``distance_window``, else the env's Go-phase length H_G when the distance
@@ -648,154 +373,70 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
     def _model_losses(
         self, states: th.Tensor, actions: th.Tensor, is_first: th.Tensor
     ) -> tuple[th.Tensor, LatentState, dict[str, th.Tensor]]:
-        """World-model loss plus the Plan2Explore ensemble's on the same (detached) posteriors.
-
-        The ensemble predicts the next stochastic state from (features, action), never across a stream start.
-
-        :return: (summed loss, detached posteriors ``(T, B, ...)``, detached metrics).
-        """
-        policy = self.policy
-        wm_loss, post, metrics = policy.world_model.loss(states, actions, is_first)
-        feat = post.feat.detach()
-        valid = (~is_first[1:]).to(feat.dtype)
-        ensemble_loss = policy.ensemble.loss(feat[:-1], actions[1:], post.stoch[1:].detach(), valid)
-        metrics = {**metrics, "world_model_loss": wm_loss.detach(), "ensemble_loss": ensemble_loss.detach()}
-        return wm_loss + ensemble_loss, post.detach(), metrics
+        """:func:`~sb3_gcrl.morefree.losses.model_losses` of the agent's world model and ensemble."""
+        return losses.model_losses(self.policy.world_model, self.policy.ensemble, states, actions, is_first)
 
     def _imagination_losses(
         self, start: LatentState, goals: th.Tensor
     ) -> tuple[th.Tensor, tuple[th.Tensor, ...], dict[str, th.Tensor]]:
-        """Actor losses of pi_G and pi_E from one batch of imagination starts (Sec. 3.3.2); runs with the world
-        model, the distance and the ensemble frozen.
-
-        pi_G is imagined from ``start`` toward ``goals`` with the reward ``-D``; pi_E from the same starts with the
-        ensemble's disagreement; both learn by backpropagating lambda-returns through the model.
-
-        :param start: imagination start states (flat batch, detached).
-        :param goals: symlog goals of pi_G, one per start.
-        :return: (summed actor loss, detached (pi_G features, pi_E features, pi_G returns, pi_E returns, pi_G's
-            decoded achieved goals), metrics).
-        """
-        policy = self.policy
-        n = goals.shape[0]
-        feats, actions, entropies = self._imagine(start, goals)
-        feats_g, feats_e = feats[:, :n], feats[:, n:]
-        achieved = policy.world_model.decode_goal(feats_g)
-        rewards_g = self._goal_rewards(achieved, goals)
-        rewards_e = self.expl_reward_scale * policy.ensemble.disagreement(feats_e[:-1], actions[:, n:])
-        returns_g = self._returns(feats_g, rewards_g, policy.critic_g_target, goals)
-        returns_e = self._returns(feats_e, rewards_e, policy.critic_e_target, None)
-        actor_g_loss = self._actor_loss(returns_g, entropies[:, :n])
-        actor_e_loss = self._actor_loss(returns_e, entropies[:, n:])
-        metrics = {
-            "actor_g_loss": actor_g_loss,
-            "actor_e_loss": actor_e_loss,
-            "imagined_return_g": returns_g.mean(),
-            "imagined_return_e": returns_e.mean(),
-            "imagined_reward_e": rewards_e.mean(),
-            "action_g_abs": actions[:, :n].abs().mean(),
-            "entropy_g": entropies[:, :n].mean(),
-        }
-        imagined = tuple(x.detach() for x in (feats_g, feats_e, returns_g, returns_e, achieved))
-        return actor_g_loss + actor_e_loss, imagined, {k: v.detach() for k, v in metrics.items()}
+        """:func:`~sb3_gcrl.morefree.losses.imagination_losses` with the agent's settings."""
+        return losses.imagination_losses(
+            self.policy,
+            start,
+            goals,
+            self.imagination_horizon,
+            self.gamma,
+            self.lambda_,
+            self.entropy_coef,
+            self.expl_reward_scale,
+        )
 
     def _learner_losses(
         self,
         imagined: tuple[th.Tensor, ...],
         goals: th.Tensor,
         groups: th.Tensor,
-        replay_pairs: tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor] | None,
+        replay_pairs: losses.ReplayPairs | None,
     ) -> tuple[th.Tensor, dict[str, th.Tensor]]:
-        """Critic losses of V_G and V_E and the distance's, from the imagined trajectories of
-        :meth:`_imagination_losses`.
-
-        D is trained on pairs of the imagined pi_G trajectories' decoded achieved goals (LEXA / PEG) and, with
-        ``replay_pairs``, on pairs of achieved goals of the replayed streams, in one unit (:attr:`distance_unit`).
-
-        :param imagined: detached (pi_G features, pi_E features, pi_G returns, pi_E returns, pi_G's decoded achieved
-            goals).
-        :param goals: symlog goals of pi_G.
-        :param groups: replayed sequence of each start (negatives of the distance come from other sequences).
-        :param replay_pairs: (symlog earlier goals, symlog later goals, steps between them, 0/1 validity) of
-            replayed pairs, or None.
-        :return: (summed loss, detached metrics).
-        """
-        policy = self.policy
-        feats_g, feats_e, returns_g, returns_e, imagined_goals = imagined
-        critic_g_loss = self._critic_loss(policy.critic_g, feats_g, returns_g, goals)
-        critic_e_loss = self._critic_loss(policy.critic_e, feats_e, returns_e, None)
-        unit = self.distance_unit
-        distance_loss = policy.distance.trajectory_loss(
-            imagined_goals, self.distance_pairs, unit, self.distance_neg_fraction, groups=groups
+        """:func:`~sb3_gcrl.morefree.losses.learner_losses` with the agent's settings (:attr:`distance_unit`)."""
+        return losses.learner_losses(
+            self.policy,
+            imagined,
+            goals,
+            groups,
+            replay_pairs,
+            self.gamma,
+            self.distance_unit,
+            self.distance_pairs,
+            self.distance_neg_fraction,
         )
-        if replay_pairs is not None:
-            distance_loss = distance_loss + policy.distance.loss(*replay_pairs[:3], unit, replay_pairs[3])
-        metrics = {"critic_g_loss": critic_g_loss, "critic_e_loss": critic_e_loss, "distance_loss": distance_loss}
-        return critic_g_loss + critic_e_loss + distance_loss, {k: v.detach() for k, v in metrics.items()}
 
-    def _replay_pairs(self) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
-        """Pairs of replayed achieved goals for the distance: ``distance_pairs`` pairs of one stream up to
-        :attr:`distance_unit` steps apart, plus ``distance_neg_fraction`` of them as negatives (two states drawn
-        independently from the whole buffer, target ``distance_unit + 1`` steps: beyond every positive).
-
-        :return: (symlog earlier goals, symlog later goals, steps between them, 0/1 validity).
-        """
-        unit = self.distance_unit
-        first, later, steps, valid = self.replay_buffer.sample_pairs(self.distance_pairs, unit, self._rng)
-        n_neg = int(round(self.distance_neg_fraction * self.distance_pairs))
-        if n_neg > 0:
-            goal_dim = self.policy.goal_dim
-            first = np.concatenate([first, self.replay_buffer.sample_states(n_neg, self._rng)[:, -goal_dim:]])
-            later = np.concatenate([later, self.replay_buffer.sample_states(n_neg, self._rng)[:, -goal_dim:]])
-            steps = np.concatenate([steps, np.full(n_neg, unit + 1)])
-            valid = np.concatenate([valid, np.ones(n_neg, dtype=bool)])
-        as_tensor = lambda x, dtype=None: th.as_tensor(x, dtype=dtype, device=self.device)  # noqa: E731
-        return symlog(as_tensor(first)), symlog(as_tensor(later)), as_tensor(steps), as_tensor(valid, th.float32)
+    def _replay_pairs(self) -> losses.ReplayPairs:
+        """:func:`~sb3_gcrl.morefree.sampling.replay_pairs` of ``distance_pairs`` pairs up to :attr:`distance_unit`
+        steps apart, ``distance_neg_fraction`` negatives."""
+        unit, n_pairs, neg_fraction = self.distance_unit, self.distance_pairs, self.distance_neg_fraction
+        return replay_pairs(self.replay_buffer, n_pairs, unit, neg_fraction, self._rng, self.device)
 
     def _autocast(self, world_model: bool = False) -> AbstractContextManager[Any]:
-        """bfloat16 matrix products (``torch.autocast``) with ``mixed_precision``, as PEG's ``precision: 16``; the
-        distributions, losses and the GRU's normalisation stay in float32.
-
-        :param world_model: for the world model's step (filtering the replayed sequences), which stays in float32 on
-            a CPU: its products are small (one per sequence step), and bfloat16's casts cost more there than they
-            save (``scripts/bench_morefree.py --profile``).
-        """
-        if not self._uses_bfloat16() or (world_model and self.device.type == "cpu"):
-            return nullcontext()
-        return th.autocast(self.device.type, dtype=th.bfloat16)
+        """bfloat16 matrix products with ``mixed_precision`` where the device computes them natively
+        (:func:`~sb3_gcrl.morefree.acceleration.autocast`; ``world_model``: the world model's step)."""
+        return autocast(self._uses_bfloat16(), self.device, world_model)
 
     def _uses_bfloat16(self) -> bool:
         """``mixed_precision`` where the device computes bfloat16 natively; decided once per process (and per load),
         with one warning where ``mixed_precision`` asks for bfloat16 on a device that would emulate it."""
         if getattr(self, "_bfloat16", None) is None:
-            self._bfloat16 = self.mixed_precision and native_bfloat16(self.device)
-            if self.mixed_precision and not self._bfloat16:
-                where = describe_cpu() if self.device.type == "cpu" else str(self.device)
-                warnings.warn(
-                    f"MoReFree: mixed_precision=True, but {where} has no native bfloat16 (a CPU needs AVX512-BF16 or "
-                    "AMX): training in float32, which is faster there; set mixed_precision=False to silence this",
-                    stacklevel=2,
-                )
+            self._bfloat16 = native_bfloat16_or_warn(self.mixed_precision, self.device)
         return bool(self._bfloat16)
 
     def _loss_functions(self) -> dict[str, Callable[..., Any]]:
         """The three loss computations of a training step, compiled with ``torch.compile`` when
         ``compile_train_step`` (compiled once, on the first training step of the process)."""
-        names = ("_model_losses", "_imagination_losses", "_learner_losses")
+        functions = {name: getattr(self, name) for name in ("_model_losses", "_imagination_losses", "_learner_losses")}
         if not self.compile_train_step:
-            return {name: getattr(self, name) for name in names}
+            return functions
         if self._compiled is None:
-            if self.verbose >= 1:
-                print(
-                    "MoReFree: compiling the training step with torch.compile (compile_train_step=True). The first "
-                    "training step waits for it, once per model in this process: minutes on a CPU (about 2-3 for the "
-                    "CPU presets, up to 20 on one core at the thesis sizes; torch's cache shortens later compiles of "
-                    "the same sizes), then a step takes about half the time; compile_train_step=False skips it"
-                )
-            # fallback_random: random numbers come from PyTorch's own generator (as in the plain step) instead of
-            # inductor's in-kernel ones, which cost about 60 ns a sample on a CPU core
-            options = {"fallback_random": True}
-            self._compiled = {name: th.compile(getattr(self, name), options=options) for name in names}
+            self._compiled = compile_functions(functions, self.verbose)
         return self._compiled
 
     def train(self) -> None:
@@ -806,14 +447,14 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
         """
         policy = self.policy
         policy.set_training_mode(True)
-        losses = self._loss_functions()
+        functions = self._loss_functions()
         states_np, actions_np, first_np = self.replay_buffer.sample(self.batch_size, self.batch_length, self._rng)
         states = th.as_tensor(states_np, device=self.device)
         actions = th.as_tensor(actions_np, device=self.device)
         is_first = th.as_tensor(first_np, device=self.device)
 
         with record_function("morefree.world_model"), self._autocast(world_model=True):
-            model_loss, post, metrics = losses["_model_losses"](states, actions, is_first)
+            model_loss, post, metrics = functions["_model_losses"](states, actions, is_first)
         with record_function("morefree.world_model_backward"):
             self._apply(model_loss, ("wm", "ensemble"))
 
@@ -830,12 +471,12 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
             n_starts = self.imagination_starts
         goals_np, _ = self.sample_imagination_goals(n_starts, batch_goals, own_goals)
         goals = symlog(th.as_tensor(goals_np, device=self.device))
-        replay_pairs = self._replay_pairs() if self.distance_on_replay else None
+        pairs = self._replay_pairs() if self.distance_on_replay else None
         frozen_models = frozen(policy.world_model, policy.distance, policy.ensemble)
         with record_function("morefree.imagination"), frozen_models, self._autocast():
-            actor_loss, imagined, actor_metrics = losses["_imagination_losses"](start, goals)
+            actor_loss, imagined, actor_metrics = functions["_imagination_losses"](start, goals)
         with record_function("morefree.learners"), self._autocast():
-            learner_loss, learner_metrics = losses["_learner_losses"](imagined, goals, groups, replay_pairs)
+            learner_loss, learner_metrics = functions["_learner_losses"](imagined, goals, groups, pairs)
         learners = ("actor_g", "critic_g", "actor_e", "critic_e", "distance")
         with record_function("morefree.imagination_backward"):
             warming_up = self._n_updates < self.distance_warmup
@@ -851,57 +492,3 @@ class MoReFree(SeededGeneratorMixin, ModelFileMixin, BaseAlgorithm):
             for name, value in {**metrics, **actor_metrics, **learner_metrics}.items():
                 log(f"train/{name}", value.item())
             log("train/imagination_alpha", self._alpha)
-
-    # --- learn ----------------------------------------------------------------------------------------------------
-    def dump_logs(self) -> None:
-        """Write the log data (SB3's public hook): episodes, returns, success, speed, the counters of the goal hooks."""
-        time_elapsed = max((time.time_ns() - self.start_time) / 1e9, sys.float_info.epsilon)
-        fps = int((self.num_timesteps - self._num_timesteps_at_start) / time_elapsed)
-        self.logger.record("time/episodes", self._episode_num, exclude="tensorboard")
-        if len(self.ep_info_buffer) > 0 and len(self.ep_info_buffer[0]) > 0:
-            self.logger.record("rollout/ep_rew_mean", safe_mean([ep["r"] for ep in self.ep_info_buffer]))
-            self.logger.record("rollout/ep_len_mean", safe_mean([ep["l"] for ep in self.ep_info_buffer]))
-        if len(self.ep_success_buffer) > 0:
-            self.logger.record("rollout/success_rate", safe_mean(self.ep_success_buffer))
-        self.logger.record("time/fps", fps)
-        self.logger.record("time/time_elapsed", int(time_elapsed), exclude="tensorboard")
-        self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
-        if self._planned_envs and self.env is not None:
-            counts = self.env.get_attr("planned_goal_counts", indices=self._planned_envs)
-            self.logger.record("morefree/peg_goals_planned", sum(c["planned"] for c in counts))
-            self.logger.record("morefree/peg_goals_fallback", sum(c["fallback"] for c in counts))
-        self.logger.dump(step=self.num_timesteps)
-
-    def learn(
-        self: SelfMoReFree,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 4,
-        tb_log_name: str = "MoReFree",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfMoReFree:
-        warn_if_learning_never_starts(self, total_timesteps, reset_num_timesteps)
-        total_timesteps, callback = self._setup_learn(
-            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
-        )
-        callback.on_training_start(locals(), globals())
-        threads = th.get_num_threads()
-        if self.n_threads is not None:
-            th.set_num_threads(self.n_threads)
-        self._attach()
-        if self._last_obs is not self._stream_obs or self._latent is None:
-            self._start_streams()
-        try:
-            while self.num_timesteps < total_timesteps:
-                remaining = -(-(total_timesteps - self.num_timesteps) // self.n_envs)
-                if not self.collect_rollouts(callback, min(self.train_ratio, remaining), log_interval):
-                    break
-                if self.num_timesteps > self.learning_starts and self.replay_buffer.can_sample(self.batch_length):
-                    self.train()
-        finally:
-            self._detach()
-            th.set_num_threads(threads)
-        self.dump_logs()
-        callback.on_training_end()
-        return self
