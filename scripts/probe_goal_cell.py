@@ -35,7 +35,9 @@ import sb3_gcrl  # noqa: F401  (registers the GCRL/ envs)
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.morefree import MoReFree
 from sb3_gcrl.morefree.diagnostics import objective_gaps
-from sb3_gcrl.morefree.networks import Critic, symlog
+from sb3_gcrl.morefree.functional import symlog
+from sb3_gcrl.morefree.losses import critic_loss
+from sb3_gcrl.morefree.networks import Critic
 from sb3_gcrl.morefree.policies import make_optimizer
 
 #: places of the goal cell, as offsets from the goal's centre (the ball touches the back wall 0.4 from the centre)
@@ -96,10 +98,10 @@ def refit_critic(model: MoReFree, hidden: int, layers: int, updates: int, states
             rows = model._rng.choice(achieved.shape[0], starts, replace=False)
             start = post.flatten().rows(th.as_tensor(rows))
             imagined_goals = symlog(th.as_tensor(model.sample_imagination_goals(starts, achieved, achieved[rows])[0]))
-            feats = model._imagine(start, imagined_goals)[0][:, :starts]
-            rewards = model._goal_rewards(policy.world_model.decode_goal(feats), imagined_goals)
-            returns = model._returns(feats, rewards, target, imagined_goals)
-        loss = model._critic_loss(critic, feats, returns, imagined_goals)
+            feats = model.imagine(start, imagined_goals)[0][:, :starts]
+            rewards = model.goal_rewards(policy.world_model.decode_goal(feats), imagined_goals)
+            returns = model.lambda_returns(feats, rewards, target, imagined_goals)
+        loss = critic_loss(critic, feats, returns, imagined_goals, model.gamma)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -153,7 +155,9 @@ def main() -> None:
     if args.refit:
         model.load_replay_buffer(str(Path(args.model).with_suffix("")) + "_buffer.pkl")
         task_goals = TaskRelevantGoals(env, policy.goal_dim)
-        model._task_goal_samples = lambda kind, n: task_goals.sample(kind, model._rng, n).astype(np.float32)
+        model.task_goal_samples = lambda kind, n, rng=None: task_goals.sample(  # type: ignore[method-assign]
+            kind, model._rng if rng is None else rng, n
+        ).astype(np.float32)
         refit_critic(model, *args.refit_size, args.refit, states, goals)
 
 
