@@ -30,7 +30,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +42,8 @@ from sb3_gcrl.compare.cli import _hyperparam
 from sb3_gcrl.compare.presets import preset_labels, run_preset, select_methods
 from sb3_gcrl.compare.run import RunSpec
 
+#: where a run's log starts a new part: continued from a checkpoint at N steps, or from zero
+PART = re.compile(r"^(?:Continuing the run from its checkpoint at (\d+) steps|The run starts from zero\b.*)$", re.M)
 PRESETS = ("ch3", "ch3-ablations", "ch3-world-model", "ch3-baselines", "ch3-baselines-tabletop")
 
 
@@ -120,9 +124,28 @@ def diagnostics_table(output: Path) -> pd.DataFrame:
         log = output / "runs" / spec.relative_dir / LOG_FILE
         if not log.is_file():
             continue
-        for step, figures in parse_diagnostics(log.read_text(errors="replace")):
+        for step, figures in run_probes(log.read_text(errors="replace"), parse_diagnostics):
             rows.append({"env": spec.env_id, "method": spec.method, "seed": spec.seed, "timesteps": step, **figures})
     return pd.DataFrame(rows)
+
+
+def run_probes(log: str, parse: Callable[[str], list[tuple[int, dict[str, float]]]]) -> list[tuple[int, dict]]:
+    """The probes of one run's log, a run continued from checkpoints read as the uninterrupted run.
+
+    A run's log holds each of its parts in turn: a part after ``Continuing the run from its checkpoint at N steps``
+    replaces the probes after ``N`` of the parts before it, one after ``The run starts from zero`` all of them.
+    Versions before the probe grid probed a continued run at its first step (``N + 1``, a repeat of the probe at
+    ``N``: left out) and then one step off the grid (``N + 1 + k * diagnose_freq``: read at the grid step).
+    """
+    marks = list(PART.finditer(log))
+    probes = parse(log[: marks[0].start()] if marks else log)
+    for mark, following in zip(marks, [*marks[1:], None], strict=True):
+        later = parse(log[mark.end() : following.start() if following else len(log)])
+        resumed_at = int(mark.group(1)) if mark.group(1) else 0
+        if resumed_at and later and later[0][0] == resumed_at + 1:
+            later = [(step - 1, figures) for step, figures in later[1:]]
+        probes = [(step, figures) for step, figures in probes if step <= resumed_at] + later
+    return probes
 
 
 def print_diagnostics(table: pd.DataFrame) -> None:

@@ -24,10 +24,11 @@ from stable_baselines3 import A2C, SAC
 from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_gcrl.cli import ZOO_CONFIGS_DIR
+from sb3_gcrl.common.checkpoints import checkpoint_extra, latest_checkpoint
 from sb3_gcrl.compare import PRESETS, EvaluationRecorder, LocalProcessBackend, compare, parse_method
 from sb3_gcrl.compare.cli import EXIT_USAGE, build_parser
 from sb3_gcrl.compare.cli import main as compare_main
-from sb3_gcrl.compare.costs import ALL_PHASES, PhaseClock
+from sb3_gcrl.compare.costs import ALL_PHASES, PhaseClock, RunTimer
 from sb3_gcrl.compare.methods import check_env_id
 from sb3_gcrl.compare.report import summarize, write_outputs
 from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run, visited_goals
@@ -538,6 +539,21 @@ def test_phase_clock_counts_each_timed_call_once_and_leaves_classes_as_it_found_
         clock.timed("learn", burn)
 
 
+def test_a_resumed_run_counts_the_time_its_steps_took_before_the_checkpoint():
+    earlier = {"wall_time_s": 100.0, "cpu_time_s": 80.0, "cpu_phase_s": {"train": 50.0, "evaluate": 5.0}}
+    timer = RunTimer()
+    timer.resume(earlier)
+    timer.clock.cpu_s["train"] += 1.0  # this part's own training
+    wall, cpu = timer.elapsed()
+    assert 100.0 <= wall < 110.0 and 80.0 <= cpu < 90.0
+    state = timer.state()
+    assert state["cpu_phase_s"]["train"] == 51.0 and state["cpu_phase_s"]["evaluate"] == 5.0
+    assert json.loads(json.dumps(state)) == state  # saved with the checkpoint's JSON
+    fresh = RunTimer()
+    fresh.resume(None)  # a checkpoint that holds no costs
+    assert fresh.elapsed()[1] < 5.0 and sum(fresh.clock.cpu_s.values()) == 0.0
+
+
 def test_report_splits_the_cpu_time_of_the_runs_that_recorded_it_by_phase(tmp_path):
     rows = [{"timesteps": 0, "mean_return": 0.0}, {"timesteps": 10, "mean_return": 1.0}]
     split = {"collect": 20.0, "train": 60.0, "evaluate": 10.0, "probe": 8.0, "checkpoint": 2.0}
@@ -983,11 +999,16 @@ def test_a_killed_run_continues_from_its_checkpoint_when_the_command_is_run_agai
     assert first.returncode == 1, output_text[-3000:]  # the run failed: its worker was killed
     saved = int((run_dir / "checkpoints" / "latest").read_text().split("_")[0])
     assert 1000 <= saved < 4000
+    costs = checkpoint_extra(latest_checkpoint(run_dir))["costs"]  # what the steps up to the checkpoint cost
+    assert costs["cpu_time_s"] > 0 and costs["cpu_phase_s"]["train"] > 0
     second = subprocess.run(command, capture_output=True, text=True, timeout=900)
     assert second.returncode == 0, second.stderr[-3000:]
     log = (run_dir / "train.log").read_text()
     assert f"Continuing the run from its checkpoint at {saved} steps" in log
     evaluations = pd.read_csv(run_dir / "evaluations.csv")
     assert evaluations["timesteps"].tolist() == [0, 1000, 2000, 3000, 4000]  # as an uninterrupted run's
-    assert json.loads((run_dir / "run.json").read_text())["status"] == "finished"
+    result = json.loads((run_dir / "run.json").read_text())
+    assert result["status"] == "finished"
+    assert result["cpu_time_s"] > costs["cpu_time_s"] and result["wall_time_s"] > costs["wall_time_s"]
+    assert result["cpu_split_s"]["train"] > costs["cpu_phase_s"]["train"]
     assert not (run_dir / "checkpoints").exists()  # a finished run keeps no checkpoint

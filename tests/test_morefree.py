@@ -897,6 +897,9 @@ def test_diagnostics_read_ground_truth_distances_goal_sensitivity_and_critic_cal
     callback = MoReFreeDiagnosticsCallback(diagnose_freq=50, n=32)
     model.learn(200, callback=callback)
     assert [t for t, _ in callback.history] == [50, 100, 150, 200]
+    resumed = MoReFreeDiagnosticsCallback(diagnose_freq=50, n=32)  # a run continued from a checkpoint at 200 steps
+    model.learn(60, callback=resumed, reset_num_timesteps=False)
+    assert [t for t, _ in resumed.history] == [250]  # on the uninterrupted run's grid, not at 201 and 251
     printed = "\n".join(["eval@0: something else", *(format_diagnostics(t, f) for t, f in callback.history)])
     parsed = parse_diagnostics(printed)
     assert [t for t, _ in parsed] == [50, 100, 150, 200]

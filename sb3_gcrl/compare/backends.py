@@ -87,7 +87,7 @@ class LocalProcessBackend(Backend):
             "PYTHONUNBUFFERED": "1",
             PARENT_PID_ENV: str(os.getpid()),
         }
-        with open(run_dir / LOG_FILE, "wb") as log:
+        with open(run_dir / LOG_FILE, "ab") as log:  # after the log of the run's earlier parts, if it has any
             return subprocess.Popen(
                 [sys.executable, "-m", "sb3_gcrl.compare.worker", str(run_dir)],
                 stdin=subprocess.DEVNULL,

@@ -11,7 +11,7 @@ import contextlib
 import functools
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import pandas as pd
@@ -94,6 +94,41 @@ class PhaseClock:
         """
         phases = {**self.cpu_s, "collect": max(0.0, total_cpu_s - sum(self.cpu_s.values()))}
         return {phase: phases[phase] for phase in ALL_PHASES}
+
+
+class RunTimer:
+    """A run's wall and CPU time (its process's, all threads) and its :class:`PhaseClock`, carried over checkpoints.
+
+    A run continued from a checkpoint adds what its steps up to the checkpoint cost (:meth:`state`, saved with the
+    checkpoint; :meth:`resume`), so its totals are those of the steps it is made of; the work lost between the last
+    checkpoint and an interruption is not counted.
+    """
+
+    def __init__(self) -> None:
+        self.clock = PhaseClock()
+        self._wall_start = time.perf_counter()
+        self._cpu_start = time.process_time()
+
+    def elapsed(self) -> tuple[float, float]:
+        """Wall and CPU seconds so far, a resumed run's earlier ones included."""
+        return time.perf_counter() - self._wall_start, time.process_time() - self._cpu_start
+
+    def state(self) -> dict[str, Any]:
+        """What :meth:`resume` takes: the time so far and the phases' CPU time (JSON-friendly)."""
+        wall, cpu = self.elapsed()
+        return {"wall_time_s": wall, "cpu_time_s": cpu, "cpu_phase_s": dict(self.clock.cpu_s)}
+
+    def resume(self, state: Mapping[str, Any] | None) -> None:
+        """Count the time of a run's earlier part (a :meth:`state` saved with its checkpoint) as this run's.
+
+        :param state: a saved :meth:`state`; ``None`` (a checkpoint that holds none) adds nothing.
+        """
+        if state is None:
+            return
+        self._wall_start -= float(state["wall_time_s"])
+        self._cpu_start -= float(state["cpu_time_s"])
+        for phase, seconds in state["cpu_phase_s"].items():
+            self.clock.cpu_s[phase] += float(seconds)
 
 
 def callback_phase(callback: Any) -> str | None:

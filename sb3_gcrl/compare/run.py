@@ -15,7 +15,6 @@ import contextlib
 import importlib
 import json
 import math
-import time
 import traceback
 from collections.abc import Callable
 from dataclasses import MISSING, asdict, dataclass, field, fields
@@ -104,8 +103,9 @@ class RunResult:
     """Outcome of a run: ``status`` is ``"finished"`` or ``"failed"`` (then ``error`` holds the traceback).
 
     ``wall_time_s`` and ``cpu_time_s`` are the run's wall and CPU time (its process's, all threads) as the worker
-    measured them; ``cpu_split_s`` splits the CPU time into the phases of :data:`~sb3_gcrl.compare.costs.ALL_PHASES`
-    (gradient updates, data collection, evaluations, probes, checkpoints).
+    measured them (a run continued from a checkpoint adds what its steps before it cost:
+    :class:`~sb3_gcrl.compare.costs.RunTimer`); ``cpu_split_s`` splits the CPU time into the phases of
+    :data:`~sb3_gcrl.compare.costs.ALL_PHASES` (gradient updates, data collection, evaluations, probes, checkpoints).
     ``visited_goals`` holds up to :data:`MAX_VISITED_POINTS` achieved goals of the training data (off-policy agents
     of goal envs only, else None), for state-visitation heatmaps and task-relevant shares.
     ``all_goals`` holds the rows of the run's :class:`~sb3_gcrl.post_exploration.AllGoalsEvalCallback` (None when
@@ -271,11 +271,11 @@ def execute_run(
     :param report_progress: called with env-step increments (progress bars).
     :return: the run's result with its evaluation rows (and all-goals rows).
     """
-    from sb3_gcrl.compare.costs import PhaseClock, time_callbacks
+    from sb3_gcrl.compare.costs import RunTimer, time_callbacks
 
-    start, cpu_start = time.perf_counter(), time.process_time()
+    timer = RunTimer()
+    clock = timer.clock
     recorder = all_goals = None
-    clock = PhaseClock()
     try:
         with contextlib.redirect_stdout(log_file), contextlib.redirect_stderr(log_file):
             prepare_process(spec.gym_packages)
@@ -293,6 +293,7 @@ def execute_run(
                 manager_class, resuming = ResumableExperimentManager, {"save_arguments": False}
             if resumed is not None:
                 print(f"Continuing the run from its checkpoint at {checkpoint_steps(resumed[0])} steps")
+                timer.resume(resumed[1].get("costs"))  # a checkpoint saved before runs recorded it: none
                 resuming["trained_agent"] = str(resumed[0] / MODEL_FILE)  # RL-Zoo's -i: model, replay buffer
                 resuming["resume_from"] = log_folder / spec.algo / f"{spec.env_slug}_1"  # the folder RL-Zoo picks
             exp_manager = manager_class(
@@ -334,7 +335,7 @@ def execute_run(
                         max(1, spec.save_freq // exp_manager.n_envs),
                         run_dir,
                         spec.env_slug,
-                        extra=lambda: {"spec": spec.to_dict(), "evaluations": recorder.records},
+                        extra=lambda: {"spec": spec.to_dict(), "evaluations": recorder.records, "costs": timer.state()},
                     )
                 )
             time_callbacks(clock, exp_manager.callbacks)
@@ -347,7 +348,7 @@ def execute_run(
             eval_env.close()
             if spec.save_model:
                 exp_manager.save_trained_model(model)
-        wall_time, cpu_time = time.perf_counter() - start, time.process_time() - cpu_start
+        wall_time, cpu_time = timer.elapsed()
         return RunResult(
             spec,
             "finished",
@@ -363,5 +364,5 @@ def execute_run(
         print(error, file=log_file)
         records = recorder.records if recorder is not None else []
         all_goals_records = all_goals.records if all_goals is not None else None
-        wall_time, cpu_time = time.perf_counter() - start, time.process_time() - cpu_start
+        wall_time, cpu_time = timer.elapsed()
         return RunResult(spec, "failed", records, wall_time, cpu_time, error=error, all_goals=all_goals_records)

@@ -80,8 +80,10 @@ def write_run_result(run_dir: Path, result: RunResult) -> None:
     atomic_write_text(run_dir / EVALUATIONS_FILE, evaluations_to_csv(result.evaluations))
     if result.all_goals is not None:
         atomic_write_text(run_dir / ALL_GOALS_FILE, evaluations_to_csv(result.all_goals, ALL_GOALS_COLUMNS))
-    if result.log:  # runs on Ray return their log; local runs wrote it in place
-        atomic_write_text(run_dir / LOG_FILE, result.log)
+    if result.log:  # runs on Ray return their log (after the earlier parts' one); local runs wrote it in place
+        log = run_dir / LOG_FILE
+        earlier = log.read_text(errors="replace") if log.is_file() else ""
+        atomic_write_text(log, earlier + result.log)
     if result.visited_goals is not None:
         buffer = io.BytesIO()
         np.save(buffer, result.visited_goals)
@@ -340,12 +342,14 @@ def _in_use_message(path: Path, holder: int | None) -> str:
 def reset_run_dir(run_dir: Path) -> None:
     """Remove what an unfinished (or overwritten) run left behind, then recreate the empty folder; its resumable
     checkpoint (:data:`~sb3_gcrl.common.checkpoints.CHECKPOINTS_DIR`) stays, and the run continues from it when it was
-    made with the same settings (:func:`~sb3_gcrl.compare.run.execute_run`)."""
+    made with the same settings (:func:`~sb3_gcrl.compare.run.execute_run`). Beside a checkpoint the log of the
+    earlier parts stays too: the next part appends to it (its probes and evaluations before the checkpoint)."""
     from sb3_gcrl.common.checkpoints import CHECKPOINTS_DIR
 
     run_dir.mkdir(parents=True, exist_ok=True)
+    keep = {CHECKPOINTS_DIR, LOG_FILE} if (run_dir / CHECKPOINTS_DIR).is_dir() else {CHECKPOINTS_DIR}
     for path in run_dir.iterdir():
-        if path.name == CHECKPOINTS_DIR:
+        if path.name in keep:
             continue
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path)

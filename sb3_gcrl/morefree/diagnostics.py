@@ -191,11 +191,16 @@ class MoReFreeDiagnosticsCallback(BaseCallback):
                 f"{self.model.observation_space}; pass rollout_env (an env id or a function that makes the env)"
             )
 
+    def _on_training_start(self) -> None:
+        # on the grid of diagnose_freq from the run's start: a run resumed from a checkpoint probes where an
+        # uninterrupted one does (not again at its first step)
+        self._next = (self.num_timesteps // self.diagnose_freq + 1) * self.diagnose_freq
+
     def _on_step(self) -> bool:
         model = self.model
         if self.num_timesteps < self._next:
             return True
-        self._next = self.num_timesteps + self.diagnose_freq
+        self._next = (self.num_timesteps // self.diagnose_freq + 1) * self.diagnose_freq
         if getattr(model, "_n_updates", 0) == 0:
             return True
         if self._geometry is None:
@@ -204,7 +209,7 @@ class MoReFreeDiagnosticsCallback(BaseCallback):
             model,  # type: ignore[arg-type]
             self._geometry,
             self.n,
-            seed=len(self.history),
+            seed=self.num_timesteps // self.diagnose_freq - 1,  # the probe's place on the grid, resumed or not
             rollout_envs=self._rollout_envs,
         )
         self.history.append((self.num_timesteps, figures))
