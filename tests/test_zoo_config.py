@@ -190,8 +190,8 @@ def test_compare_specs_with_variants_and_their_labels() -> None:
 
 def test_the_run_digest_covers_the_resolved_section(tmp_path: Path) -> None:
     """A changed variant is never silently reused: each section has its own digest, stored with the run."""
+    from sb3_gcrl.compare.comparison import plan_runs
     from sb3_gcrl.compare.methods import parse_method
-    from sb3_gcrl.compare.runner import plan_runs
 
     methods = [parse_method(spec) for spec in ("sac", "sac@naive", "sac@oracle")]
     specs = plan_runs(

@@ -13,14 +13,14 @@ Training curves (``rollout/`` prefix, with SB3's next ``rollout/*`` dump): SB3's
 ``ep_len_mean`` and ``success_rate`` over the last 100 segments, which the wrappers report as episodes
 (:mod:`sb3_gcrl.wrappers.segments`; the Monitor CSV gets one row per segment), and
 ``goal_success_<evaluation|initial|exploratory>``, the success rate of the last ``window`` segments that were
-commanded a goal of that kind (:class:`~sb3_gcrl.callbacks.segments.GoalSuccessLog`).
+commanded a goal of that kind (:class:`~sb3_gcrl.callbacks.goal_success.GoalSuccessLog`).
 """
 
 from __future__ import annotations
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_gcrl.callbacks.segments import GoalSuccessLog
+from sb3_gcrl.callbacks.goal_success import GoalSuccessLog
 from sb3_gcrl.common.validation import check_int
 from sb3_gcrl.her.executed_action import check_stores_executed_actions
 from sb3_gcrl.her.first_update import check_her_first_update

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_gcrl.callbacks.segments import GoalSuccessLog
+from sb3_gcrl.callbacks.goal_success import GoalSuccessLog
 from sb3_gcrl.common.validation import check_int
 from sb3_gcrl.her.executed_action import check_stores_executed_actions
 from sb3_gcrl.post_exploration.metrics import coverage, training_visit_counts, visitation_entropy

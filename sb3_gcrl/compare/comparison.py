@@ -1,4 +1,5 @@
-"""``compare()``: methods x envs x seeds, run in parallel, resumable, analysed into a report."""
+"""A comparison, ``compare()``: methods x envs x seeds planned as runs, run in parallel, resumable, analysed into a
+report (each run itself: :mod:`sb3_gcrl.compare.run`)."""
 
 from __future__ import annotations
 
