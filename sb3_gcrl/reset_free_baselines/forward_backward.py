@@ -42,13 +42,11 @@ from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
-from sb3_gcrl.common.validation import FiniteRewardsMixin
+from sb3_gcrl.common.transitions import Observation, TransitionHooksMixin
 from sb3_gcrl.her import check_n_sampled_goal
 
 #: the env attribute that tells a forward-backward env (``ForwardBackwardWrapper``) apart
 PHASE_ENV_ATTR = "forward_backward_steps"
-
-Observation = np.ndarray | dict[str, np.ndarray]
 
 
 def has_samples(buffer: Any) -> bool:
@@ -116,7 +114,7 @@ class _PhaseRouter:
                 )
 
 
-class ForwardBackwardSAC(ModelFileMixin, ClassNamedRunsMixin, FiniteRewardsMixin, SAC):
+class ForwardBackwardSAC(ModelFileMixin, ClassNamedRunsMixin, TransitionHooksMixin, SAC):
     """A forward SAC (this object) and a backward SAC (:attr:`backward`) alternating by the env's phases.
 
     Use it on a goal env wrapped in :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` (``segment_length`` = phase length)
@@ -365,31 +363,18 @@ class ForwardBackwardSAC(ModelFileMixin, ClassNamedRunsMixin, FiniteRewardsMixin
         action[backward], buffer_action[backward] = backward_action[backward], backward_buffer_action[backward]
         return action, buffer_action
 
-    def _store_transition(
-        self,
-        replay_buffer: ReplayBuffer,
-        buffer_action: np.ndarray,
-        new_obs: Observation,
-        reward: np.ndarray,
-        dones: np.ndarray,
-        infos: list[dict[str, Any]],
-    ) -> None:
-        """Store each env's transition in the buffer of the policy that acted (forward or backward).
+    def _transition_buffer(self, replay_buffer: ReplayBuffer) -> _PhaseRouter:
+        """Each env's transition goes to the buffer of the policy that acted (forward or backward); the phases'
+        step counts move on.
 
         :param replay_buffer: the forward buffer (SB3's argument; the routing uses both buffers).
-        :param buffer_action: scaled actions.
-        :param new_obs: next observations.
-        :param reward: rewards.
-        :param dones: episode (segment) ends.
-        :param infos: the envs' infos.
         """
         backward = self._backward_acted
         counts = np.array([len(backward) - backward.sum(), backward.sum()], dtype=np.int64)
         self.phase_steps += counts
         self._pending_steps += counts
         assert self.replay_buffer is not None
-        router = _PhaseRouter(self.replay_buffer, self.backward_buffer, backward)
-        super()._store_transition(router, buffer_action, new_obs, reward, dones, infos)  # type: ignore[arg-type]
+        return _PhaseRouter(self.replay_buffer, self.backward_buffer, backward)
 
     # --- training -----------------------------------------------------------------------------------------------
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
