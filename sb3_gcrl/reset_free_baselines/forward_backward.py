@@ -6,9 +6,9 @@ holds a second SAC learner, :attr:`ForwardBackwardSAC.backward`, for the backwar
 :meth:`ForwardBackwardSAC._backward_phases` reads which envs are in a backward phase (by default the ``phase`` of
 :class:`~sb3_gcrl.reset_free_baselines.ForwardBackwardWrapper`; IBC reads its curriculum's segment kind). Then:
 
-* acting: the forward policy acts for the envs in a forward phase, the backward policy (SB3's own ``_sample_action``
-  of :attr:`~ForwardBackwardSAC.backward`) for the others; the random warm-up actions of ``learning_starts`` are
-  shared;
+* acting: the forward policy acts for the envs in a forward phase, the backward policy (the ``predict`` of
+  :attr:`~ForwardBackwardSAC.backward`, scaled as SB3 scales the forward's) for the others; the random warm-up
+  actions of ``learning_starts`` are shared;
 * storing: each learner has its own replay buffer (``model.replay_buffer``, ``model.backward_buffer``); a transition
   goes to the buffer of the policy that acted;
 * training: only the policy that acted is updated: its share of the ``gradient_steps`` of a ``train`` call is the
@@ -355,13 +355,26 @@ class ForwardBackwardSAC(ModelFileMixin, ClassNamedRunsMixin, TransitionHooksMix
         backward = self._backward_acted = self._backward_phases()
         if self.num_timesteps < learning_starts or not backward.any():
             return super()._sample_action(learning_starts, action_noise, n_envs)
-        self.backward._last_obs = self._last_obs
         if backward.all():
-            return self.backward._sample_action(0, action_noise, n_envs)
+            return self._backward_action(action_noise)
         action, buffer_action = super()._sample_action(learning_starts, action_noise, n_envs)
-        backward_action, backward_buffer_action = self.backward._sample_action(0, action_noise, n_envs)
+        backward_action, backward_buffer_action = self._backward_action(action_noise)
         action[backward], buffer_action[backward] = backward_action[backward], backward_buffer_action[backward]
         return action, buffer_action
+
+    def _backward_action(self, action_noise: ActionNoise | None) -> tuple[np.ndarray, np.ndarray]:
+        """The backward policy's action for every env, through its public ``predict``, as SB3's ``_sample_action``
+        makes the forward policy's after the warm-up: sampled (not deterministic), scaled to [-1, 1] for the buffer,
+        plus the action noise.
+
+        :param action_noise: extra action noise.
+        :return: the action for the env and the action for the buffer.
+        """
+        unscaled_action, _ = self.backward.predict(self._last_obs, deterministic=False)  # type: ignore[arg-type]
+        scaled_action = self.backward.policy.scale_action(unscaled_action)
+        if action_noise is not None:
+            scaled_action = np.clip(scaled_action + action_noise(), -1, 1)
+        return self.backward.policy.unscale_action(scaled_action), scaled_action
 
     def _transition_buffer(self, replay_buffer: ReplayBuffer) -> _PhaseRouter:
         """Each env's transition goes to the buffer of the policy that acted (forward or backward); the phases'
