@@ -821,7 +821,7 @@ def test_hyperparameter_typos_are_refused_before_any_run_with_close_matches(tmp_
 
 def test_zoo_keys_and_inherited_constructor_arguments_pass_the_hyperparameter_check():
     from sb3_gcrl.compare.run import prepare_process
-    from sb3_gcrl.zoo_config import check_hyperparameters
+    from sb3_gcrl.zoo_checks import check_hyperparameters
 
     prepare_process(single_thread=False)
     check_hyperparameters(

@@ -121,7 +121,7 @@ def test_missing_env_and_missing_variant_name_the_files_envs_and_variants() -> N
 
 @pytest.mark.parametrize(("file", "key"), SECTIONS, ids=[f"{f}-{k}" for f, k in SECTIONS])
 def test_every_section_is_accepted_by_its_algorithm(file: str, key: str) -> None:
-    from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks
+    from sb3_gcrl.zoo_checks import check_hyperparameters, check_mode_switching_callbacks
 
     section = read_zoo_config(ZOO_CONFIGS_DIR / f"{file}.yml")[key]
     check_hyperparameters(file.removesuffix(THESIS_SUFFIX), section, f"{file}.yml ({key})")

@@ -235,7 +235,7 @@ def resumable_checkpoint(run_dir: Path, spec: RunSpec) -> tuple[Path, dict[str, 
         checkpoint_extra,
         latest_checkpoint,
     )
-    from sb3_gcrl.zoo_config import algorithm_class
+    from sb3_gcrl.zoo_checks import algorithm_class
 
     if not (run_dir / CHECKPOINTS_DIR).is_dir():
         return None
