@@ -59,7 +59,9 @@ class EpisodicControlPolicy(BasePolicy):
         self.seed = seed
         self.knn_backend = knn_backend
         self.rebuild_threshold = check_optional_int("rebuild_threshold", rebuild_threshold)
-        self.embedding = KeyEmbedding(observation_space, projection_dim, seed, self.observation_keys)
+        self.embedding = KeyEmbedding(
+            observation_space, projection_dim=projection_dim, seed=seed, observation_keys=self.observation_keys
+        )
         self.rng = np.random.default_rng(seed)
         #: probability of exploring (epsilon), set by the algorithm's schedule during training
         self.exploration_rate = 0.0
