@@ -82,7 +82,7 @@ class EMACPolicy(TD3Policy):
             observation_keys=self.observation_keys,
         )
         self.memory = EMACMemory(
-            key_dim=self.memory_embedding.key_dim,
+            self.memory_embedding.key_dim,
             capacity=self.memory_capacity,
             n_neighbors=self.n_neighbors,
             neighbour_weighting=neighbour_weighting,

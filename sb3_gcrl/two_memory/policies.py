@@ -175,8 +175,8 @@ class TwoMemoryDQNPolicy(KeyedMemoryDispatchMixin, DQNPolicy):
         self.ec_capacity_per_action = ec_capacity_per_action
         self.ec_n_neighbors = ec_n_neighbors
         self.memory = MFECMemory(
-            key_dim=self.embedding.key_dim,
-            n_actions=n_actions,
+            self.embedding.key_dim,
+            n_actions,
             capacity_per_action=ec_capacity_per_action,
             n_neighbors=ec_n_neighbors,
             knn_backend=knn_backend,  # type: ignore[arg-type]
@@ -279,8 +279,8 @@ class TwoMemorySACPolicy(KeyedMemoryDispatchMixin, SACPolicy):
         self.ec_noise_std = check_float("ec_noise_std", ec_noise_std, 0.0)
         self._init_keyed_memory(ec_projection_dim=ec_projection_dim, ec_seed=ec_seed, knn_backend=knn_backend)
         self.memory = CECMemory(
-            key_dim=self.embedding.key_dim,
-            action_dim=int(np.prod(action_space.shape)),
+            self.embedding.key_dim,
+            int(np.prod(action_space.shape)),
             capacity=ec_capacity,
             distance_threshold=ec_distance_threshold,
             filter_factor=ec_filter_factor,
