@@ -254,10 +254,10 @@ def _overrides(argv: Sequence[str]) -> tuple[dict[str, Any], str]:
 
 def _check_names(argv: Sequence[str]) -> None:
     """Stop before the hyperparameters are looked up when ``--algo`` or ``--env`` names nothing that exists, with
-    close matches (:func:`~sb3_gcrl.zoo_config.check_algorithm`, :func:`~sb3_gcrl.zoo_config.check_env_id`: the
+    close matches (:func:`~sb3_gcrl.zoo_checks.check_algorithm`, :func:`~sb3_gcrl.zoo_checks.check_env_id`: the
     checks of ``sb3-gcrl compare``); the modules of ``--gym-packages`` are imported first (they register envs)."""
     from sb3_gcrl.compare.run import prepare_process
-    from sb3_gcrl.zoo_config import check_algorithm, check_env_id
+    from sb3_gcrl.zoo_checks import check_algorithm, check_env_id
 
     prepare_process(tuple(_option_values(argv, "--gym-packages")), single_thread=False)
     try:
@@ -269,9 +269,9 @@ def _check_names(argv: Sequence[str]) -> None:
 
 def _check_config(argv: list[str], resolved: ResolvedConfig) -> None:
     """Stop before training when the section (with the ``-params`` overrides) has a key that the algorithm does not
-    take (:func:`~sb3_gcrl.zoo_config.check_hyperparameters`, with close matches), uses a mode-switched wrapper
-    without its callback (:func:`~sb3_gcrl.zoo_config.check_mode_switching_callbacks`), or has no budget of at least
-    one step (:func:`~sb3_gcrl.zoo_config.run_budget`: ``-n``, else the section's ``n_timesteps``), when the model of
+    take (:func:`~sb3_gcrl.zoo_checks.check_hyperparameters`, with close matches), uses a mode-switched wrapper
+    without its callback (:func:`~sb3_gcrl.zoo_checks.check_mode_switching_callbacks`), or has no budget of at least
+    one step (:func:`~sb3_gcrl.zoo_checks.run_budget`: ``-n``, else the section's ``n_timesteps``), when the model of
     ``-i`` is not one that the algorithm loads (:func:`~sb3_gcrl.common.saving.check_model_file`, the check of our
     algorithms' ``load``), or when the log folder (``-f``) cannot be written
     (:func:`~sb3_gcrl.common.validation.check_writable_folder`): the checks of ``sb3-gcrl compare``."""
@@ -280,7 +280,7 @@ def _check_config(argv: list[str], resolved: ResolvedConfig) -> None:
     from sb3_gcrl.algorithms import ALGORITHMS
     from sb3_gcrl.common.saving import check_model_file
     from sb3_gcrl.common.validation import check_writable_folder
-    from sb3_gcrl.zoo_config import algorithm_class, check_hyperparameters, check_mode_switching_callbacks, run_budget
+    from sb3_gcrl.zoo_checks import algorithm_class, check_hyperparameters, check_mode_switching_callbacks, run_budget
 
     overrides, flag = _overrides(argv)
     algo = option_value(argv, "--algo")

@@ -49,16 +49,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sb3_gcrl.zoo_config import (
-    ZOO_KEYS,
-    algorithm_class,
-    check_hyperparameters,
-    check_mode_switching_callbacks,
-    find_config,
-    read_zoo_config,
-    resolve_config,
-    split_section_key,
-)
+from sb3_gcrl.zoo_checks import algorithm_class, check_hyperparameters, check_mode_switching_callbacks
+from sb3_gcrl.zoo_config import ZOO_KEYS, find_config, read_zoo_config, resolve_config, split_section_key
 
 if TYPE_CHECKING:
     from stable_baselines3 import SAC

@@ -330,7 +330,7 @@ def resume_arguments(run_dir: Path) -> tuple[list[str], Path]:
     """
     from sb3_gcrl.common.checkpoints import CheckpointError, check_checkpoint
     from sb3_gcrl.common.command_line import option_value
-    from sb3_gcrl.zoo_config import algorithm_class
+    from sb3_gcrl.zoo_checks import algorithm_class
 
     saved = sorted(run_dir.glob(f"*/{ARGUMENTS_FILE}"))
     if not saved:

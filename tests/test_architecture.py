@@ -30,7 +30,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("building blocks", ("analysis", "envs", "goals", "memory")),
     ("mechanisms", ("wrappers", "her", "callbacks", "post_exploration", "episodic_control")),
     ("algorithms", ("cec", "mfec", "emac", "two_memory", "tabular", "imgep", "morefree", "reset_free_baselines")),
-    ("runs", ("hyperparams_opt", "algorithms", "zoo_config", "zoo_train", "morefree_sac")),
+    ("runs", ("hyperparams_opt", "algorithms", "zoo_config", "zoo_checks", "zoo_train", "morefree_sac")),
     ("comparisons", ("compare",)),
     ("entry points", ("cli", "__main__", ROOT)),
 )

@@ -170,7 +170,7 @@ def test_reset_free_training_logs_rollout_curves_per_segment(tmp_path) -> None:
 def test_goal_success_log_by_hand() -> None:
     from stable_baselines3.common.logger import Logger
 
-    from sb3_gcrl.callbacks.segments import GoalSuccessLog
+    from sb3_gcrl.callbacks.goal_success import GoalSuccessLog
 
     log, logger = GoalSuccessLog(window=2), Logger(None, [])
     segment = [{"goal_kind": "forward", "is_success": True}, {"goal_kind": "back", "is_success": False}]

@@ -28,11 +28,11 @@ from sb3_gcrl.common.checkpoints import checkpoint_extra, latest_checkpoint
 from sb3_gcrl.compare import PRESETS, EvaluationRecorder, LocalProcessBackend, compare, parse_method
 from sb3_gcrl.compare.cli import EXIT_USAGE, build_parser
 from sb3_gcrl.compare.cli import main as compare_main
+from sb3_gcrl.compare.comparison import _config_label, plan_runs
 from sb3_gcrl.compare.costs import ALL_PHASES, PhaseClock, RunTimer
 from sb3_gcrl.compare.methods import check_env_id
 from sb3_gcrl.compare.report import summarize, write_outputs
 from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run, visited_goals
-from sb3_gcrl.compare.runner import _config_label, plan_runs
 from sb3_gcrl.compare.storage import (
     atomic_write_text,
     is_finished,
@@ -837,7 +837,7 @@ def test_hyperparameter_typos_are_refused_before_any_run_with_close_matches(tmp_
 
 def test_zoo_keys_and_inherited_constructor_arguments_pass_the_hyperparameter_check():
     from sb3_gcrl.compare.run import prepare_process
-    from sb3_gcrl.zoo_config import check_hyperparameters
+    from sb3_gcrl.zoo_checks import check_hyperparameters
 
     prepare_process(single_thread=False)
     check_hyperparameters(
@@ -850,16 +850,16 @@ def test_zoo_keys_and_inherited_constructor_arguments_pass_the_hyperparameter_ch
 
 def test_cli_prints_failures_and_announces_only_the_plot_it_wrote(tmp_path, monkeypatch, capsys):
     """No run finished: no curves.png, so the console must not point to one; failures show error and log."""
-    import sb3_gcrl.compare.runner as runner
+    import sb3_gcrl.compare.comparison as comparison
+    from sb3_gcrl.compare.comparison import ComparisonResult
     from sb3_gcrl.compare.report import Summary
-    from sb3_gcrl.compare.runner import ComparisonResult
 
     spec = tiny_spec(tmp_path)
     log = tmp_path / "out" / "runs" / "train.log"
     error = "Traceback (most recent call last):\n  File 'x.py', line 1\nValueError: learning_rate is not a schedule"
     summary = Summary(pd.DataFrame(), pd.DataFrame(), pd.DataFrame(), {}, [(spec, error, log)], "(none)", [], {})
     result = ComparisonResult(tmp_path / "out", [spec], 0, summary, 1.0, files=[tmp_path / "out" / "report.md"])
-    monkeypatch.setattr(runner, "compare", lambda *args, **kwargs: result)
+    monkeypatch.setattr(comparison, "compare", lambda *args, **kwargs: result)
     assert compare_main(["-m", "sac", "-e", "Pendulum-v1", "-o", str(tmp_path / "out")]) == 1
     out, err = capsys.readouterr()
     assert "curves.png" not in out and "no plot" in out

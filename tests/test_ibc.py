@@ -92,11 +92,11 @@ def test_commanded_goals_and_acting_agent_through_the_wrapper_and_ibc():
     fixed = np.array([[0.05]], dtype=np.float32)  # the backward agent's spy action (scaled: 0.5)
     calls = []
 
-    def backward_action(learning_starts: int, action_noise: Any = None, n_envs: int = 1) -> Any:
+    def backward_predict(observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = False):
         calls.append(model.env.get_attr("goal_kind")[0])  # type: ignore[union-attr]
-        return fixed.copy(), model.backward.policy.scale_action(fixed)
+        return fixed.copy(), None
 
-    model.backward._sample_action = backward_action  # type: ignore[method-assign]
+    model.backward.predict = backward_predict  # type: ignore[method-assign]
     model.learn(400, callback=ResetFreeCallback(log_freq=100))
     scheduler = find_ibc_scheduler(model.env.envs[0])  # type: ignore[union-attr]
     assert scheduler is not None and scheduler.agent is model

@@ -135,7 +135,7 @@ def test_every_config_builds_its_wrapped_env(env_id: str, variant: str | None) -
 
 @pytest.mark.parametrize("config", sorted((REPO / "zoo_configs").glob("*.yml")), ids=lambda p: p.stem)
 def test_every_config_with_a_mode_switched_wrapper_has_its_callback(config: Path) -> None:
-    from sb3_gcrl.zoo_config import check_mode_switching_callbacks
+    from sb3_gcrl.zoo_checks import check_mode_switching_callbacks
 
     for key, section in read_zoo_config(config).items():  # variants (<env id>@<variant>) included
         check_mode_switching_callbacks(section, f"{config.name} ({key})")
@@ -143,7 +143,7 @@ def test_every_config_with_a_mode_switched_wrapper_has_its_callback(config: Path
 
 def test_wrappers_without_their_switching_callback_are_refused(tmp_path: Path) -> None:
     from sb3_gcrl.cli import main
-    from sb3_gcrl.zoo_config import check_mode_switching_callbacks
+    from sb3_gcrl.zoo_checks import check_mode_switching_callbacks
 
     wrapper = {"sb3_gcrl.wrappers.ResetFreeWrapper": {"eval_horizon": 300}}
     reset_free = "sb3_gcrl.callbacks.ResetFreeCallback"

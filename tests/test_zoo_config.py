@@ -121,7 +121,7 @@ def test_missing_env_and_missing_variant_name_the_files_envs_and_variants() -> N
 
 @pytest.mark.parametrize(("file", "key"), SECTIONS, ids=[f"{f}-{k}" for f, k in SECTIONS])
 def test_every_section_is_accepted_by_its_algorithm(file: str, key: str) -> None:
-    from sb3_gcrl.zoo_config import check_hyperparameters, check_mode_switching_callbacks
+    from sb3_gcrl.zoo_checks import check_hyperparameters, check_mode_switching_callbacks
 
     section = read_zoo_config(ZOO_CONFIGS_DIR / f"{file}.yml")[key]
     check_hyperparameters(file.removesuffix(THESIS_SUFFIX), section, f"{file}.yml ({key})")
@@ -190,8 +190,8 @@ def test_compare_specs_with_variants_and_their_labels() -> None:
 
 def test_the_run_digest_covers_the_resolved_section(tmp_path: Path) -> None:
     """A changed variant is never silently reused: each section has its own digest, stored with the run."""
+    from sb3_gcrl.compare.comparison import plan_runs
     from sb3_gcrl.compare.methods import parse_method
-    from sb3_gcrl.compare.runner import plan_runs
 
     methods = [parse_method(spec) for spec in ("sac", "sac@naive", "sac@oracle")]
     specs = plan_runs(

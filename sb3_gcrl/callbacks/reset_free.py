@@ -13,32 +13,24 @@ Training curves (``rollout/`` prefix, with SB3's next ``rollout/*`` dump): SB3's
 ``ep_len_mean`` and ``success_rate`` over the last 100 segments, which the wrappers report as episodes
 (:mod:`sb3_gcrl.wrappers.segments`; the Monitor CSV gets one row per segment), and
 ``goal_success_<evaluation|initial|exploratory>``, the success rate of the last ``window`` segments that were
-commanded a goal of that kind (:class:`~sb3_gcrl.callbacks.segments.GoalSuccessLog`).
+commanded a goal of that kind (:class:`~sb3_gcrl.callbacks.goal_success.GoalSuccessLog`).
 """
 
 from __future__ import annotations
 
-from stable_baselines3.common.callbacks import BaseCallback
-
-from sb3_gcrl.callbacks.segments import GoalSuccessLog
-from sb3_gcrl.common.validation import check_int
+from sb3_gcrl.callbacks.step_logging import StepLoggingCallback
 from sb3_gcrl.her.executed_action import check_stores_executed_actions
 from sb3_gcrl.her.first_update import check_her_first_update
 from sb3_gcrl.wrappers.mode import switch_training_envs
 
 
-class ResetFreeCallback(BaseCallback):
+class ResetFreeCallback(StepLoggingCallback):
     """Switch the training env to training (reset-free) mode; log interventions and commanded-goal statistics.
 
     :param log_freq: log every ``log_freq`` calls of ``on_step`` (i.e. ``log_freq * n_envs`` env steps).
     :param window: segments per goal kind in ``rollout/goal_success_<kind>``.
     :param verbose: verbosity.
     """
-
-    def __init__(self, log_freq: int = 1000, window: int = 100, verbose: int = 0) -> None:
-        super().__init__(verbose)
-        self.log_freq = check_int("log_freq", log_freq)
-        self.goal_success = GoalSuccessLog(window)
 
     def _on_training_start(self) -> None:
         env = self.training_env
@@ -53,13 +45,6 @@ class ResetFreeCallback(BaseCallback):
         check_her_first_update(self.model, env, self.model._total_timesteps, "ResetFreeCallback")
         if self.verbose > 0:
             print(f"ResetFreeCallback: reset-free mode on for {env.num_envs} training env(s)")
-
-    def _on_step(self) -> bool:
-        # SB3 calls on_step before it reads the infos, so these values join its next rollout/* dump
-        self.goal_success.update(self.locals["infos"], self.locals["dones"], self.logger)
-        if self.n_calls % self.log_freq == 0:
-            self.log_statistics()
-        return True
 
     def log_statistics(self) -> None:
         """Record the current statistics in the SB3 logger (also called at the end of training)."""
@@ -82,6 +67,3 @@ class ResetFreeCallback(BaseCallback):
             go = sum(p["go"] for p in env.get_attr("phase_steps_total"))
             explore = sum(p["explore"] for p in env.get_attr("phase_steps_total"))
             self.logger.record("reset_free/explore_step_share", explore / max(go + explore, 1))
-
-    def _on_training_end(self) -> None:
-        self.log_statistics()

@@ -12,7 +12,8 @@ with it.
 * HER: :func:`check_n_sampled_goal`;
 * data: :func:`check_finite_rewards`, :func:`check_finite_returns`, :func:`check_saved_rows`;
 * files: :func:`check_writable_folder` (an output folder, before work starts);
-* algorithms: :class:`FiniteRewardsMixin` (every reward an SB3 off-policy algorithm stores is checked).
+* (every reward an SB3 off-policy algorithm of the package stores is checked by
+  :class:`~sb3_gcrl.common.transitions.TransitionHooksMixin` with :func:`check_finite_rewards`).
 """
 
 from __future__ import annotations
@@ -202,43 +203,6 @@ def check_finite_rewards(rewards: float | np.ndarray, when: str, why: str, sourc
         f"{source or f'Env {index}'} returned the reward {values[index]} {when}: {why}; fix the env's reward, or wrap "
         "it with stable_baselines3.common.vec_env.VecCheckNan to find the source"
     )
-
-
-class FiniteRewardsMixin:
-    """Mix in before an SB3 off-policy algorithm: reject a NaN or infinite reward at the step that returned it.
-
-    Tables, episodic memories and critics average rewards into their values, and one NaN spreads to every value it
-    is compared with or averaged into, so that the run fails much later with an error about something else (a NaN
-    observation, a torch distribution). The check runs in ``_store_transition``, where SB3 hands the step's rewards
-    to the replay buffer; an algorithm whose ``_store_transition`` does not call ``super()`` calls
-    :meth:`_check_rewards` itself.
-    """
-
-    num_timesteps: int
-
-    def _check_rewards(self, rewards: np.ndarray) -> None:
-        """:func:`check_finite_rewards` of one step's rewards (one per env).
-
-        :param rewards: the rewards SB3 is about to store.
-        :raises ValueError: if a reward is NaN or infinite.
-        """
-        check_finite_rewards(
-            rewards,
-            f"at timestep {self.num_timesteps}",
-            f"{type(self).__name__} learns its values from the rewards (a NaN would spread to every value it meets)",
-        )
-
-    def _store_transition(
-        self,
-        replay_buffer: Any,
-        buffer_action: np.ndarray,
-        new_obs: Any,
-        reward: np.ndarray,
-        dones: np.ndarray,
-        infos: list[dict[str, Any]],
-    ) -> None:
-        self._check_rewards(reward)
-        super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)  # type: ignore[misc]
 
 
 def check_finite_returns(returns: np.ndarray) -> None:

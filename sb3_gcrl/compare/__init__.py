@@ -9,11 +9,11 @@ Python use::
 """
 
 from sb3_gcrl.compare.backends import LocalProcessBackend, RayBackend
+from sb3_gcrl.compare.comparison import ComparisonResult, compare
 from sb3_gcrl.compare.evaluation import EvaluationRecorder
 from sb3_gcrl.compare.methods import Method, parse_method
 from sb3_gcrl.compare.presets import PRESETS, Preset
 from sb3_gcrl.compare.run import RunResult, RunSpec, execute_run
-from sb3_gcrl.compare.runner import ComparisonResult, compare
 
 __all__ = [
     "PRESETS",

@@ -29,7 +29,7 @@ Job = tuple[RunSpec, Path]
 
 
 class RunEvents(Protocol):
-    """What a backend reports while it works (implemented by the runner's progress display)."""
+    """What a backend reports while it works (implemented by the comparison's progress display)."""
 
     def on_start(self, spec: RunSpec) -> None: ...
 

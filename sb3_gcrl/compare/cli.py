@@ -153,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     seeds = pick(args.seeds or (list(range(args.n_seeds)) if args.n_seeds is not None else None), "seeds", (0, 1, 2))
     output = args.output or Path("results") / (preset_name or "comparison")
 
-    from sb3_gcrl.compare.runner import compare, describe_failure
+    from sb3_gcrl.compare.comparison import compare, describe_failure
     from sb3_gcrl.compare.storage import OutputInUseError
 
     command = "sb3-gcrl compare" + ("" if not argv else " " + shlex.join(argv))

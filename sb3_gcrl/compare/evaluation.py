@@ -108,8 +108,8 @@ class EvaluationRecorder(BaseCallback):
     def evaluate_final(self) -> None:
         """Evaluate at the last step if the schedule did not land on it (budget not a multiple of ``eval_freq``).
 
-        Called by the runner after a *completed* ``learn`` (not from ``on_training_end``, which RL-Zoo also
-        calls after a crash, and twice).
+        Called by :func:`~sb3_gcrl.compare.run.execute_run` after a *completed* ``learn`` (not from
+        ``on_training_end``, which RL-Zoo also calls after a crash, and twice).
         """
         if self.records and self.records[-1]["num_timesteps"] < self.num_timesteps:
             self._evaluate(scheduled=self.num_timesteps)

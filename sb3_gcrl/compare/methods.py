@@ -28,13 +28,11 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from sb3_gcrl.zoo_checks import available_algorithms, check_algorithm, check_env_id
 from sb3_gcrl.zoo_config import (
     VARIANT_SEPARATOR,
     ZOO_CONFIGS_DIR,
     ResolvedConfig,
-    available_algorithms,
-    check_algorithm,
-    check_env_id,
     config_sections,
     find_config,
     resolve_config,

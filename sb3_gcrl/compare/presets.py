@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from sb3_gcrl.compare.runner import ComparisonResult
+    from sb3_gcrl.compare.comparison import ComparisonResult
 
 
 @dataclass(frozen=True)
@@ -41,12 +41,12 @@ class Preset:
     thesis: str = ""
 
     def compare_kwargs(self, **overrides: Any) -> dict[str, Any]:
-        """Keyword arguments of :func:`~sb3_gcrl.compare.runner.compare` for this preset.
+        """Keyword arguments of :func:`~sb3_gcrl.compare.comparison.compare` for this preset.
 
         :param overrides: values that replace the preset's (``methods``, ``envs``, ``seeds``, ``n_timesteps``,
             ``eval_freq``, ``n_eval_episodes``, ``metric``, ``title``) or add to it (``hyperparams`` and
             ``env_kwargs`` are merged over the preset's); ``None`` keeps the preset's value. Any other
-            :func:`~sb3_gcrl.compare.runner.compare` argument (``output``, ``n_workers``...) is passed through.
+            :func:`~sb3_gcrl.compare.comparison.compare` argument (``output``, ``n_workers``...) is passed through.
         :return: the arguments, ready for ``compare(**kwargs)``.
         """
         kwargs: dict[str, Any] = {
@@ -340,13 +340,13 @@ def select_methods(names: Sequence[str], labels: Sequence[str] | None = None) ->
 
 
 def run_preset(name: str, output: str | Path, **overrides: Any) -> ComparisonResult:
-    """Run a preset through :func:`~sb3_gcrl.compare.runner.compare` (resumable like ``sb3-gcrl compare``).
+    """Run a preset through :func:`~sb3_gcrl.compare.comparison.compare` (resumable like ``sb3-gcrl compare``).
 
     :param name: preset name.
     :param output: comparison folder.
     :param overrides: see :meth:`Preset.compare_kwargs` (``None`` keeps the preset's value).
     :return: the comparison's result.
     """
-    from sb3_gcrl.compare.runner import compare
+    from sb3_gcrl.compare.comparison import compare
 
     return compare(**get_preset(name).compare_kwargs(output=output, **overrides))

@@ -1,4 +1,5 @@
-"""One run of a comparison (method x env x seed), built by RL-Zoo's own ``ExperimentManager``.
+"""One run of a comparison (method x env x seed), built by RL-Zoo's own ``ExperimentManager``; the comparison that
+plans and schedules the runs is :mod:`sb3_gcrl.compare.comparison`.
 
 A run is exactly what ``rl_zoo3 train --algo ALGO --env ENV -conf CONFIG --seed SEED -n BUDGET`` builds
 (hyperparameters, ``env_wrapper``, ``normalize``, YAML ``callback``s...), except that the zoo's
@@ -234,7 +235,7 @@ def resumable_checkpoint(run_dir: Path, spec: RunSpec) -> tuple[Path, dict[str, 
         checkpoint_extra,
         latest_checkpoint,
     )
-    from sb3_gcrl.zoo_config import algorithm_class
+    from sb3_gcrl.zoo_checks import algorithm_class
 
     if not (run_dir / CHECKPOINTS_DIR).is_dir():
         return None

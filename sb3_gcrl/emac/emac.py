@@ -10,7 +10,6 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3 import TD3
 from stable_baselines3.common.base_class import maybe_make_env
-from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.common.utils import polyak_update
@@ -19,8 +18,8 @@ from torch.nn import functional as F
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
+from sb3_gcrl.common.transitions import Transition, TransitionHooksMixin
 from sb3_gcrl.common.validation import (
-    FiniteRewardsMixin,
     check_bool,
     check_choice,
     check_float,
@@ -33,7 +32,7 @@ from sb3_gcrl.memory.episode import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.memory.knn import KNN_BACKENDS, KNNBackend
 
 
-class EMAC(EpisodeRecordingMixin, ModelFileMixin, ClassNamedRunsMixin, FiniteRewardsMixin, TD3):
+class EMAC(EpisodeRecordingMixin, ModelFileMixin, ClassNamedRunsMixin, TransitionHooksMixin, TD3):
     """Episodic Memory Actor-Critic: DDPG whose critic also regresses onto an episodic memory's Monte-Carlo estimate.
 
     Critic loss of the paper, for each critic ``Q_i`` (one, as in DDPG, by default)::
@@ -170,20 +169,16 @@ class EMAC(EpisodeRecordingMixin, ModelFileMixin, ClassNamedRunsMixin, FiniteRew
             )
         return result
 
-    def _store_transition(
-        self,
-        replay_buffer: ReplayBuffer,
-        buffer_action: np.ndarray,
-        new_obs: np.ndarray | dict[str, np.ndarray],
-        reward: np.ndarray,
-        dones: np.ndarray,
-        infos: list[dict[str, Any]],
-    ) -> None:
-        # keys from what the critic is trained on: the observation the action was taken in (SB3 moves _last_obs
-        # on in the call below) and the action scaled to [-1, 1]
-        keys = self.policy.memory_keys(self._last_obs, buffer_action)  # type: ignore[arg-type]
-        super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
-        for episode in self._episodes.record(keys, buffer_action, reward, dones, infos):
+    def _on_transition(self, transition: Transition) -> None:
+        """Record the step into the running episodes; a finished episode's returns go into the memory.
+
+        :param transition: the step of every training env.
+        """
+        # keys from what the critic is trained on: the observation the action was taken in and the action scaled
+        # to [-1, 1]
+        keys = self.policy.memory_keys(transition.observations, transition.actions)
+        actions, rewards, dones, infos = transition.actions, transition.rewards, transition.dones, transition.infos
+        for episode in self._episodes.record(keys, actions, rewards, dones, infos):
             if episode.updates_memory(self.memory_update_truncated):
                 self.policy.memory.add_episode(episode.keys, episode.returns(self.gamma))
 

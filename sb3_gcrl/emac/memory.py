@@ -49,10 +49,10 @@ class StateActionEmbedding:
         seed: int | None = None,
         observation_keys: Sequence[str] | None = None,
     ) -> None:
-        self.observations = KeyEmbedding(observation_space, None, None, observation_keys)
+        self.observations = KeyEmbedding(observation_space, projection_dim=None, observation_keys=observation_keys)
         self.action_dim = int(np.prod(action_space.shape))
         joint = spaces.Box(-np.inf, np.inf, (self.observations.input_dim + self.action_dim,), np.float32)
-        self.joint = KeyEmbedding(joint, projection_dim, seed)
+        self.joint = KeyEmbedding(joint, projection_dim=projection_dim, seed=seed)
 
     @property
     def key_dim(self) -> int:

@@ -75,11 +75,15 @@ class EMACPolicy(TD3Policy):
         self.memory_seed = int(memory_seed)
         self.knn_backend = knn_backend
         self.memory_embedding = StateActionEmbedding(
-            observation_space, action_space, self.projection_dim, self.memory_seed, self.observation_keys
+            observation_space,
+            action_space,
+            projection_dim=self.projection_dim,
+            seed=self.memory_seed,
+            observation_keys=self.observation_keys,
         )
         self.memory = EMACMemory(
             self.memory_embedding.key_dim,
-            self.memory_capacity,
+            capacity=self.memory_capacity,
             n_neighbors=self.n_neighbors,
             neighbour_weighting=neighbour_weighting,
             knn_backend=knn_backend,

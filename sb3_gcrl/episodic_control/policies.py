@@ -2,9 +2,10 @@
 
 An episodic-control agent has no network and no gradient step. So the policy is a
 :class:`~stable_baselines3.common.policies.BasePolicy` without parameters that holds the memory and a
-:class:`~sb3_gcrl.memory.embedding.KeyEmbedding`, works on numpy end to end (no tensor round trip per step), and puts
-the memory into its ``state_dict`` through ``get_extra_state`` (:func:`~sb3_gcrl.memory.serialization.memory_state`:
-used rows only, as tensors), so ``save``/``load`` restore it exactly inside the usual ``policy.pth`` of the SB3 zip.
+:class:`~sb3_gcrl.memory.embedding.KeyEmbedding`, works on numpy end to end while training (no tensor round trip
+per step; SB3's own ``predict`` reaches the memory through ``_predict``), and puts the memory into its
+``state_dict`` through ``get_extra_state`` (:func:`~sb3_gcrl.memory.serialization.memory_state`: used rows only, as
+tensors), so ``save``/``load`` restore it exactly inside the usual ``policy.pth`` of the SB3 zip.
 """
 
 from __future__ import annotations
@@ -58,7 +59,9 @@ class EpisodicControlPolicy(BasePolicy):
         self.seed = seed
         self.knn_backend = knn_backend
         self.rebuild_threshold = check_optional_int("rebuild_threshold", rebuild_threshold)
-        self.embedding = KeyEmbedding(observation_space, projection_dim, seed, self.observation_keys)
+        self.embedding = KeyEmbedding(
+            observation_space, projection_dim=projection_dim, seed=seed, observation_keys=self.observation_keys
+        )
         self.rng = np.random.default_rng(seed)
         #: probability of exploring (epsilon), set by the algorithm's schedule during training
         self.exploration_rate = 0.0
@@ -76,50 +79,24 @@ class EpisodicControlPolicy(BasePolicy):
         """Actions for a batch of keys; returns ``(actions, hits)`` where ``hits`` marks the queries
         the memory could answer (logged as ``memory/hit_rate``)."""
 
-    def predict(
-        self,
-        observation: np.ndarray | dict[str, np.ndarray],
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = False,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict``, without a tensor round trip through the memory.
-
-        The observation is prepared by SB3's :meth:`obs_to_tensor`, as for any SB3 policy: channel-last
-        images are transposed channel-first (as ``VecTransposeImage`` did during training, so the memory
-        sees the keys it was trained on) and a single observation gets a batch dimension. The actions
-        have SB3's shapes: ``(n, *action_space.shape)`` for a batch, ``action_space.shape`` for one
-        observation (an array of shape ``()`` for ``Discrete``, as SB3's DQN returns), and the action space's
-        dtype (the memory computes in float32).
-
-        :param observation: one observation or a batch (Dict observations: a dict of those).
-        :param state: passed through (no recurrent state).
-        :param episode_start: unused (no recurrent state).
-        :param deterministic: greedy action if True, else the training-time (exploring) action.
-        :return: the actions and ``state``.
-        """
-        if isinstance(observation, tuple) and len(observation) == 2 and isinstance(observation[1], dict):
-            raise ValueError(
-                "predict() got a tuple (obs, info): pass only the observation returned by env.reset()/step()"
-            )
-        obs_tensor, vectorized = self.obs_to_tensor(observation)
-        if isinstance(obs_tensor, dict):
-            batch: np.ndarray | dict[str, np.ndarray] = {k: v.cpu().numpy() for k, v in obs_tensor.items()}
-        else:
-            batch = obs_tensor.cpu().numpy()
-        actions, _ = self.act(self.embedding(batch), deterministic=deterministic)
-        actions = np.asarray(actions, dtype=self.action_space.dtype).reshape((-1, *self.action_space.shape))  # type: ignore[misc]
-        if not vectorized:
-            actions = actions.squeeze(axis=0)
-        return actions, state
-
     def _predict(self, observation: th.Tensor | dict[str, th.Tensor], deterministic: bool = False) -> th.Tensor:
+        """The memory's actions for a batch of observations, in the action space's dtype, for SB3's ``predict``.
+
+        SB3's :meth:`predict` prepares the observation as for any SB3 policy (channel-last images are transposed
+        channel-first, as ``VecTransposeImage`` did during training, so the memory sees the keys it was trained on; a
+        single observation gets a batch dimension) and gives the actions SB3's shapes (an array of shape ``()`` for
+        one ``Discrete`` observation, as SB3's DQN returns).
+
+        :param observation: the batch, as tensors.
+        :param deterministic: greedy actions if True, else the training-time (exploring) actions.
+        :return: the actions (the memory computes in float32; they are returned in the action space's dtype).
+        """
         if isinstance(observation, dict):
             obs: np.ndarray | dict[str, np.ndarray] = {k: v.cpu().numpy() for k, v in observation.items()}
         else:
             obs = observation.cpu().numpy()
         actions, _ = self.act(self.embedding(obs), deterministic=deterministic)
-        return th.as_tensor(actions)
+        return th.as_tensor(np.asarray(actions, dtype=self.action_space.dtype))
 
     def forward(self, obs: th.Tensor, deterministic: bool = False) -> th.Tensor:
         return self._predict(obs, deterministic)

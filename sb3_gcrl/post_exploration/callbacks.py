@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_gcrl.callbacks.segments import GoalSuccessLog
-from sb3_gcrl.common.validation import check_int
+from sb3_gcrl.callbacks.step_logging import StepLoggingCallback
 from sb3_gcrl.her.executed_action import check_stores_executed_actions
 from sb3_gcrl.post_exploration.metrics import coverage, training_visit_counts, visitation_entropy
 from sb3_gcrl.wrappers.mode import switch_training_envs
 
 
-class PostExplorationCallback(BaseCallback):
+class PostExplorationCallback(StepLoggingCallback):
     """Enable :class:`~sb3_gcrl.post_exploration.PostExplorationWrapper` training mode; log its statistics.
 
     At the start of training it calls ``set_training_mode(True)`` on the training env only (the eval env that
@@ -35,10 +33,8 @@ class PostExplorationCallback(BaseCallback):
     def __init__(
         self, log_freq: int = 1000, require_executed_actions: bool = True, window: int = 100, verbose: int = 0
     ) -> None:
-        super().__init__(verbose)
-        self.log_freq = check_int("log_freq", log_freq)
+        super().__init__(log_freq, window, verbose)
         self.require_executed_actions = require_executed_actions
-        self.goal_success = GoalSuccessLog(window)
 
     def _on_training_start(self) -> None:
         env = self.training_env
@@ -55,14 +51,8 @@ class PostExplorationCallback(BaseCallback):
         if self.verbose > 0:
             print(f"PostExplorationCallback: IMGEP training mode on for {env.num_envs} training env(s)")
 
-    def _on_step(self) -> bool:
-        self.goal_success.update(self.locals["infos"], self.locals["dones"], self.logger)
-        if self.n_calls % self.log_freq == 0:
-            self.log_statistics()
-        return True
-
     def _on_training_end(self) -> None:
-        self.log_statistics()
+        super()._on_training_end()
         if self.verbose > 0:
             values = self.logger.name_to_value
             print(

@@ -37,6 +37,7 @@ from sb3_gcrl.goals.schedulers import GoalScheduler
 from sb3_gcrl.post_exploration.rules import NoveltyAdaptive, PostExplorationRule, make_post_exploration_rule
 from sb3_gcrl.wrappers.go_explore import EXECUTED_ACTION_KEY
 from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper, scalar_reward
+from sb3_gcrl.wrappers.goal_env import record_constructor_args
 
 #: info key marking post-exploration steps
 POST_EXPLORATION_KEY = "post_exploration"
@@ -84,17 +85,7 @@ class PostExplorationWrapper(GoalCommandWrapper):
         success_distance: float | None = None,
     ) -> None:
         # record this class's arguments (so gym.make can re-create the wrapper), before the parent records its own
-        gym.utils.RecordConstructorArgs.__init__(
-            self,
-            post_exploration=post_exploration,
-            n_pe=n_pe,
-            p_pe=p_pe,
-            adaptive=adaptive,
-            rule=rule,
-            scheduler=scheduler,
-            scheduler_kwargs=scheduler_kwargs,
-            success_distance=success_distance,
-        )
+        record_constructor_args(self, locals())
         super().__init__(env, scheduler, scheduler_kwargs, success_distance)
         if rule is None:
             rule = make_post_exploration_rule(n_pe=n_pe, p_pe=p_pe, adaptive=adaptive)

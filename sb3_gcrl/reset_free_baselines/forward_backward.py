@@ -6,9 +6,9 @@ holds a second SAC learner, :attr:`ForwardBackwardSAC.backward`, for the backwar
 :meth:`ForwardBackwardSAC._backward_phases` reads which envs are in a backward phase (by default the ``phase`` of
 :class:`~sb3_gcrl.reset_free_baselines.ForwardBackwardWrapper`; IBC reads its curriculum's segment kind). Then:
 
-* acting: the forward policy acts for the envs in a forward phase, the backward policy (SB3's own ``_sample_action``
-  of :attr:`~ForwardBackwardSAC.backward`) for the others; the random warm-up actions of ``learning_starts`` are
-  shared;
+* acting: the forward policy acts for the envs in a forward phase, the backward policy (the ``predict`` of
+  :attr:`~ForwardBackwardSAC.backward`, scaled as SB3 scales the forward's) for the others; the random warm-up
+  actions of ``learning_starts`` are shared;
 * storing: each learner has its own replay buffer (``model.replay_buffer``, ``model.backward_buffer``); a transition
   goes to the buffer of the policy that acted;
 * training: only the policy that acted is updated: its share of the ``gradient_steps`` of a ``train`` call is the
@@ -42,13 +42,11 @@ from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin, atomic_save_to_pkl
-from sb3_gcrl.common.validation import FiniteRewardsMixin
+from sb3_gcrl.common.transitions import Observation, TransitionHooksMixin
 from sb3_gcrl.her import check_n_sampled_goal
 
 #: the env attribute that tells a forward-backward env (``ForwardBackwardWrapper``) apart
 PHASE_ENV_ATTR = "forward_backward_steps"
-
-Observation = np.ndarray | dict[str, np.ndarray]
 
 
 def has_samples(buffer: Any) -> bool:
@@ -116,7 +114,7 @@ class _PhaseRouter:
                 )
 
 
-class ForwardBackwardSAC(ModelFileMixin, ClassNamedRunsMixin, FiniteRewardsMixin, SAC):
+class ForwardBackwardSAC(ModelFileMixin, ClassNamedRunsMixin, TransitionHooksMixin, SAC):
     """A forward SAC (this object) and a backward SAC (:attr:`backward`) alternating by the env's phases.
 
     Use it on a goal env wrapped in :class:`~sb3_gcrl.wrappers.ResetFreeWrapper` (``segment_length`` = phase length)
@@ -357,39 +355,39 @@ class ForwardBackwardSAC(ModelFileMixin, ClassNamedRunsMixin, FiniteRewardsMixin
         backward = self._backward_acted = self._backward_phases()
         if self.num_timesteps < learning_starts or not backward.any():
             return super()._sample_action(learning_starts, action_noise, n_envs)
-        self.backward._last_obs = self._last_obs
         if backward.all():
-            return self.backward._sample_action(0, action_noise, n_envs)
+            return self._backward_action(action_noise)
         action, buffer_action = super()._sample_action(learning_starts, action_noise, n_envs)
-        backward_action, backward_buffer_action = self.backward._sample_action(0, action_noise, n_envs)
+        backward_action, backward_buffer_action = self._backward_action(action_noise)
         action[backward], buffer_action[backward] = backward_action[backward], backward_buffer_action[backward]
         return action, buffer_action
 
-    def _store_transition(
-        self,
-        replay_buffer: ReplayBuffer,
-        buffer_action: np.ndarray,
-        new_obs: Observation,
-        reward: np.ndarray,
-        dones: np.ndarray,
-        infos: list[dict[str, Any]],
-    ) -> None:
-        """Store each env's transition in the buffer of the policy that acted (forward or backward).
+    def _backward_action(self, action_noise: ActionNoise | None) -> tuple[np.ndarray, np.ndarray]:
+        """The backward policy's action for every env, through its public ``predict``, as SB3's ``_sample_action``
+        makes the forward policy's after the warm-up: sampled (not deterministic), scaled to [-1, 1] for the buffer,
+        plus the action noise.
+
+        :param action_noise: extra action noise.
+        :return: the action for the env and the action for the buffer.
+        """
+        unscaled_action, _ = self.backward.predict(self._last_obs, deterministic=False)  # type: ignore[arg-type]
+        scaled_action = self.backward.policy.scale_action(unscaled_action)
+        if action_noise is not None:
+            scaled_action = np.clip(scaled_action + action_noise(), -1, 1)
+        return self.backward.policy.unscale_action(scaled_action), scaled_action
+
+    def _transition_buffer(self, replay_buffer: ReplayBuffer) -> _PhaseRouter:
+        """Each env's transition goes to the buffer of the policy that acted (forward or backward); the phases'
+        step counts move on.
 
         :param replay_buffer: the forward buffer (SB3's argument; the routing uses both buffers).
-        :param buffer_action: scaled actions.
-        :param new_obs: next observations.
-        :param reward: rewards.
-        :param dones: episode (segment) ends.
-        :param infos: the envs' infos.
         """
         backward = self._backward_acted
         counts = np.array([len(backward) - backward.sum(), backward.sum()], dtype=np.int64)
         self.phase_steps += counts
         self._pending_steps += counts
         assert self.replay_buffer is not None
-        router = _PhaseRouter(self.replay_buffer, self.backward_buffer, backward)
-        super()._store_transition(router, buffer_action, new_obs, reward, dones, infos)  # type: ignore[arg-type]
+        return _PhaseRouter(self.replay_buffer, self.backward_buffer, backward)
 
     # --- training -----------------------------------------------------------------------------------------------
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:

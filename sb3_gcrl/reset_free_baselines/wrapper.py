@@ -31,6 +31,7 @@ from sb3_gcrl.common.validation import check_bool
 from sb3_gcrl.goals.schedulers import EvaluationGoalScheduler
 from sb3_gcrl.goals.task_goals import TaskRelevantGoals
 from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
+from sb3_gcrl.wrappers.goal_env import record_constructor_args
 from sb3_gcrl.wrappers.reset_free import ResetFreeWrapper
 
 #: the two phases, in the order they alternate
@@ -82,19 +83,14 @@ class ForwardBackwardWrapper(GoalCommandWrapper):
         success_distance: float | None = None,
         task_goal_capacity: int = 10_000,
     ) -> None:
+        # record this class's arguments (so gym.make can re-create the wrapper), before the parent records its own
+        record_constructor_args(self, locals())
         reset_free = unwrap_wrapper(env, ResetFreeWrapper)
         if reset_free is None or reset_free.segment_length is None:
             raise ValueError(
                 "ForwardBackwardWrapper needs a ResetFreeWrapper below it with segment_length set (the phase length, "
                 "MEDAL: 300): wrap the env as ForwardBackwardWrapper(ResetFreeWrapper(env, segment_length=300, ...))"
             )
-        # record this class's arguments (so gym.make can re-create the wrapper), before the parent records its own
-        gym.utils.RecordConstructorArgs.__init__(
-            self,
-            end_forward_on_success=end_forward_on_success,
-            success_distance=success_distance,
-            task_goal_capacity=task_goal_capacity,
-        )
         super().__init__(env, "evaluation", None, success_distance, task_goal_capacity)
         self.scheduler = ForwardBackwardScheduler(self.task_goals)
         self.end_forward_on_success = check_bool("end_forward_on_success", end_forward_on_success)

@@ -14,7 +14,8 @@ from stable_baselines3.common.utils import LinearSchedule
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.seeding import SeededGeneratorMixin
-from sb3_gcrl.common.validation import FiniteRewardsMixin, check_int, check_step_size, check_unit_interval
+from sb3_gcrl.common.transitions import TransitionHooksMixin
+from sb3_gcrl.common.validation import check_int, check_step_size, check_unit_interval
 from sb3_gcrl.tabular.policies import check_tabular_spaces
 
 SelfTabularAlgorithm = TypeVar("SelfTabularAlgorithm", bound="TabularAlgorithm")
@@ -62,7 +63,7 @@ def check_tabular_hyperparameters(
 
 
 class TabularAlgorithm(
-    SeededGeneratorMixin, ModelFileMixin, ClassNamedRunsMixin, FiniteRewardsMixin, OffPolicyAlgorithm
+    SeededGeneratorMixin, ModelFileMixin, ClassNamedRunsMixin, TransitionHooksMixin, OffPolicyAlgorithm
 ):
     """Off-policy tabular agent with epsilon-greedy exploration drawn per env (SB3's DQN draws one coin per batch).
 

@@ -4,8 +4,8 @@ dispatcher, per-env exploration, source-tagged replay and ``two_memory/*`` logs.
 :class:`TwoMemoryAlgorithmMixin` is the base of the three 2M agents (:class:`~sb3_gcrl.two_memory.TwoMemoryDQN`,
 :class:`~sb3_gcrl.two_memory.TwoMemorySAC`, :class:`~sb3_gcrl.tabular.TabularTwoMemory`): it builds the
 :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryDispatcher` from its constructor arguments and calls it from
-``_setup_learn`` and ``_store_transition``, so ``learn`` needs no callback. It also holds the set-up, the per-env
-exploration, the train step guard and the logging of the three agents.
+``_setup_learn`` and from every stored step (``_on_transition``), so ``learn`` needs no callback. It also holds the
+set-up, the per-env exploration, the train step guard and the logging of the three agents.
 """
 
 from __future__ import annotations
@@ -22,13 +22,13 @@ from stable_baselines3.common.policies import BasePolicy
 from sb3_gcrl.common.runs import ClassNamedRunsMixin
 from sb3_gcrl.common.saving import ModelFileMixin
 from sb3_gcrl.common.seeding import SeededGeneratorMixin
-from sb3_gcrl.common.validation import FiniteRewardsMixin
+from sb3_gcrl.common.transitions import Transition, TransitionHooksMixin
 from sb3_gcrl.two_memory.buffers import SourceTaggedReplayBuffer
 from sb3_gcrl.two_memory.dispatch import PecSpec, TwoMemoryDispatcher
 from sb3_gcrl.two_memory.schedules import DEFAULT_P_EC_SCHEDULE, EPISODIC, PARAMETRIC
 
 
-class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRunsMixin, FiniteRewardsMixin):
+class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRunsMixin, TransitionHooksMixin):
     """Algorithm side of 2M for an SB3 ``OffPolicyAlgorithm`` whose policy is a
     :class:`~sb3_gcrl.two_memory.policy_mixin.TwoMemoryDispatchMixin`.
 
@@ -39,7 +39,7 @@ class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRu
       :class:`~sb3_gcrl.two_memory.dispatch.TwoMemoryDispatcher` (:attr:`dispatcher`, which checks them), the score
       window and the subclass's EC settings (``ec_kwargs``) to the policy;
     - drives the dispatch: :attr:`dispatcher` draws each env's acting memory when its episode starts and finishes
-      every episode (``p_ec`` is the last draw's), from ``_setup_learn`` and ``_store_transition``, so ``learn``
+      every episode (``p_ec`` is the last draw's), from ``_setup_learn`` and ``_on_transition``, so ``learn``
       needs no callback;
     - acts through the policy's per-env dispatch, with epsilon-greedy applied per env on both memories for
       Discrete actions (stock DQN draws one epsilon coin for the whole batch of envs), its coins drawn with the
@@ -188,32 +188,34 @@ class TwoMemoryAlgorithmMixin(SeededGeneratorMixin, ModelFileMixin, ClassNamedRu
             return policy.unscale_action(scaled_action), scaled_action
         return unscaled_action, unscaled_action
 
-    def _store_transition(
-        self,
-        replay_buffer: ReplayBuffer,
-        buffer_action: np.ndarray,
-        new_obs: np.ndarray | dict[str, np.ndarray],
-        reward: np.ndarray,
-        dones: np.ndarray,
-        infos: list[dict[str, Any]],
-    ) -> None:
-        # the episodic memory is keyed on what the policy sees (normalised if VecNormalize is used); the scores and
-        # stored returns use the env's own rewards
-        observations = self._last_obs
-        rewards = reward if self._vec_normalize_env is None else self._vec_normalize_env.get_original_reward()
+    def _transition_buffer(self, replay_buffer: ReplayBuffer) -> ReplayBuffer:
+        """SB3's replay buffer, told which memory acted in each env (a source-tagged one).
+
+        :param replay_buffer: SB3's replay buffer.
+        """
         if isinstance(replay_buffer, SourceTaggedReplayBuffer):
             replay_buffer.next_sources[:] = self.policy.acting_memory
-        super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)  # type: ignore[misc]
+        return replay_buffer
+
+    def _on_transition(self, transition: Transition) -> None:
+        """Hand the step to the dispatcher (episodes, memory updates, the next draws).
+
+        :param transition: the step of every training env.
+        """
+        # the episodic memory is keyed on what the policy sees (normalised if VecNormalize is used); the scores and
+        # stored returns use the env's own rewards
+        normalize = self._vec_normalize_env
+        rewards = transition.rewards if normalize is None else normalize.get_original_reward()
         self.dispatcher.step(
             self.policy,
-            observations,
-            buffer_action,
+            transition.observations,
+            transition.actions,
             rewards,
-            dones,
-            infos,
+            transition.dones,
+            transition.infos,
             self.num_timesteps,
             self.logger,
-            replay_buffer,
+            transition.replay_buffer,
         )
 
     def train(self, gradient_steps: int, batch_size: int | None = None) -> None:

@@ -12,7 +12,7 @@ saved), one module each:
   (Eq. 5.2) -- with every episode when data is shared, only with the EC's own when it is not (ablation 2Mw/oDS).
 - :class:`~sb3_gcrl.two_memory.algorithm.TwoMemoryAlgorithmMixin` (:mod:`sb3_gcrl.two_memory.algorithm`) is mixed
   into the SB3 algorithm: it builds the dispatcher from its constructor arguments and calls it from ``_setup_learn``
-  and ``_store_transition``, so ``learn`` needs no callback.
+  and from every stored step (``_on_transition``), so ``learn`` needs no callback.
 
 Stock SB3 DQN has no such hooks: :class:`~sb3_gcrl.two_memory.callbacks.TwoMemoryCallback` calls the same
 dispatcher from a callback.

@@ -168,7 +168,7 @@ class TwoMemoryDQNPolicy(KeyedMemoryDispatchMixin, DQNPolicy):
         TwoMemoryDispatcher.refuse_settings(kwargs, type(self).__name__)
         DQNPolicy.__init__(self, observation_space, action_space, lr_schedule, **kwargs)
         self._init_dispatch(score_window)
-        self._init_keyed_memory(ec_projection_dim, ec_seed, knn_backend)
+        self._init_keyed_memory(ec_projection_dim=ec_projection_dim, ec_seed=ec_seed, knn_backend=knn_backend)
         n_actions = int(action_space.n)
         if ec_capacity_per_action is None:
             ec_capacity_per_action = max(100_000 // (2 * n_actions), 1)
@@ -277,7 +277,7 @@ class TwoMemorySACPolicy(KeyedMemoryDispatchMixin, SACPolicy):
         self._init_dispatch(score_window)
         self.ec_epsilon = check_float("ec_epsilon", ec_epsilon, 0.0, 1.0)
         self.ec_noise_std = check_float("ec_noise_std", ec_noise_std, 0.0)
-        self._init_keyed_memory(ec_projection_dim, ec_seed, knn_backend)
+        self._init_keyed_memory(ec_projection_dim=ec_projection_dim, ec_seed=ec_seed, knn_backend=knn_backend)
         self.memory = CECMemory(
             self.embedding.key_dim,
             int(np.prod(action_space.shape)),

@@ -44,6 +44,7 @@ from stable_baselines3.common.env_util import unwrap_wrapper
 from sb3_gcrl.common.validation import check_bool, check_int
 from sb3_gcrl.goals.schedulers import GoalScheduler
 from sb3_gcrl.wrappers.goal_command import GoalCommandWrapper
+from sb3_gcrl.wrappers.goal_env import record_constructor_args
 from sb3_gcrl.wrappers.reset_free import ResetFreeWrapper
 
 ExplorePolicy = Callable[[dict[str, np.ndarray], np.random.Generator], np.ndarray]
@@ -163,18 +164,7 @@ class GoExploreWrapper(GoalCommandWrapper):
         task_goal_capacity: int = 10_000,
     ) -> None:
         # record this class's arguments (so gym.make can re-create the wrapper), before the parent records its own
-        gym.utils.RecordConstructorArgs.__init__(
-            self,
-            scheduler=scheduler,
-            scheduler_kwargs=scheduler_kwargs,
-            eval_horizon=eval_horizon,
-            go_steps=go_steps,
-            explore_steps=explore_steps,
-            explore_policy=explore_policy,
-            end_go_on_success=end_go_on_success,
-            success_distance=success_distance,
-            task_goal_capacity=task_goal_capacity,
-        )
+        record_constructor_args(self, locals())
         super().__init__(env, scheduler, scheduler_kwargs, success_distance, task_goal_capacity)
         reset_free = unwrap_wrapper(env, ResetFreeWrapper)
         below = None if reset_free is None else reset_free.eval_horizon

@@ -117,8 +117,8 @@ class TrainingModeMixin:
     def _check_reward(self, reward: SupportsFloat) -> None:
         """Reject a NaN or infinite reward where the chain hands it to SB3 (in the outermost mode-switched wrapper,
         in both modes), so that a plain SB3 algorithm stops at the step that returned it instead of failing later
-        inside torch (the package's own algorithms check what they store: :class:`~sb3_gcrl.common.validation.
-        FiniteRewardsMixin`).
+        inside torch (the package's own algorithms check what they store: :class:`~sb3_gcrl.common.transitions.
+        TransitionHooksMixin`).
 
         :param reward: the reward this wrapper returns.
         :raises ValueError: naming the wrapper, the mode and ``VecCheckNan``, for a non-finite reward.

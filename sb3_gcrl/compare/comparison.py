@@ -1,4 +1,5 @@
-"""``compare()``: methods x envs x seeds, run in parallel, resumable, analysed into a report."""
+"""A comparison, ``compare()``: methods x envs x seeds planned as runs, run in parallel, resumable, analysed into a
+report (each run itself: :mod:`sb3_gcrl.compare.run`)."""
 
 from __future__ import annotations
 
@@ -22,11 +23,12 @@ from sb3_gcrl.compare.storage import (
     is_finished,
     lock_output,
 )
-from sb3_gcrl.zoo_config import ZOO_CONFIGS_DIR, check_hyperparameters, check_mode_switching_callbacks, run_budget
+from sb3_gcrl.zoo_checks import check_hyperparameters, check_mode_switching_callbacks, run_budget
+from sb3_gcrl.zoo_config import ZOO_CONFIGS_DIR
 
 #: evaluations per run when ``eval_freq`` is not given
 DEFAULT_N_EVALUATIONS = 20
-#: how a comparison sets the constructor arguments a config may not set (``RUN_SET_ARGUMENTS`` of zoo_config)
+#: how a comparison sets the constructor arguments a config may not set (``RUN_SET_ARGUMENTS`` of zoo_checks)
 RUN_SET_HINT = "seed: --seeds; env: --envs"
 #: lines of a failed run's error printed on the console
 ERROR_LINES_SHOWN = 3

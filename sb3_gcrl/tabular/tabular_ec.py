@@ -8,6 +8,7 @@ import numpy as np
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 
+from sb3_gcrl.common.transitions import Transition
 from sb3_gcrl.common.validation import check_bool, check_unit_interval
 from sb3_gcrl.memory.episode import EpisodeRecorder, EpisodeRecordingMixin
 from sb3_gcrl.tabular.policies import TabularECPolicy
@@ -52,24 +53,25 @@ class TabularEpisodicControl(EpisodeRecordingMixin, TabularAlgorithm):
     def ec_table(self) -> np.ndarray:
         return self.policy.ec_table
 
-    def _store_transition(
-        self,
-        replay_buffer: ReplayBuffer,
-        buffer_action: np.ndarray,
-        new_obs: Any,
-        reward: np.ndarray,
-        dones: np.ndarray,
-        infos: list[dict[str, Any]],
-    ) -> None:
-        # No replay: record the step, update the table at episode ends.
-        self._check_rewards(reward)
-        states, actions = np.asarray(self._last_obs).reshape(-1), np.asarray(buffer_action).reshape(-1)
+    def _transition_buffer(self, replay_buffer: ReplayBuffer) -> None:
+        """No replay: the steps are stored nowhere (the table learns at episode ends, :meth:`_on_transition`).
+
+        :param replay_buffer: SB3's replay buffer (unused).
+        """
+        return None
+
+    def _on_transition(self, transition: Transition) -> None:
+        """Record the step into the running episodes; a finished episode's returns update the table (Eq. 5.2).
+
+        :param transition: the step of every training env.
+        """
+        states = np.asarray(transition.observations).reshape(-1)
+        actions = np.asarray(transition.actions).reshape(-1)
         gamma = self.gamma if self.ec_gamma is None else self.ec_gamma
-        for episode in self._episodes.record(states, actions, reward, dones, infos):
+        for episode in self._episodes.record(states, actions, transition.rewards, transition.dones, transition.infos):
             if episode.updates_memory(self.ec_update_truncated):
                 self.policy.update_episode(episode.keys, episode.actions, episode.returns(gamma))
-        self._last_obs = new_obs
 
     def train(self, gradient_steps: int, batch_size: int = 32) -> None:
-        """Nothing to do between episodes (the table is updated in ``_store_transition``)."""
+        """Nothing to do between episodes (the table is updated in :meth:`_on_transition`)."""
         self.logger.record("train/ec_visited_fraction", float(np.isfinite(self.ec_table).mean()))
