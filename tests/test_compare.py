@@ -28,7 +28,7 @@ from sb3_gcrl.common.checkpoints import checkpoint_extra, latest_checkpoint
 from sb3_gcrl.compare import PRESETS, EvaluationRecorder, LocalProcessBackend, compare, parse_method
 from sb3_gcrl.compare.cli import EXIT_USAGE, build_parser
 from sb3_gcrl.compare.cli import main as compare_main
-from sb3_gcrl.compare.comparison import _config_label, plan_runs
+from sb3_gcrl.compare.comparison import _config_label, compile_note, plan_runs
 from sb3_gcrl.compare.costs import ALL_PHASES, PhaseClock, RunTimer
 from sb3_gcrl.compare.methods import check_env_id
 from sb3_gcrl.compare.report import summarize, write_outputs
@@ -537,6 +537,20 @@ def test_phase_clock_counts_each_timed_call_once_and_leaves_classes_as_it_found_
         assert not hasattr(Evaluator, "train")
     with pytest.raises(ValueError, match="phase must be one of"):
         clock.timed("learn", burn)
+
+
+def test_compare_says_before_the_runs_that_compiling_their_training_step_takes_minutes(tmp_path):
+    def plan(method: str, **hyperparams: object) -> list:
+        return plan_runs(
+            [parse_method(method)], ["GCRL/PointUMazeGoal-v0"], [0, 1], 1000, 500, 1, hyperparams, (), ZOO_CONFIGS_DIR,
+            config_folder=tmp_path,
+        )  # fmt: skip
+
+    note = compile_note(plan("morefree") + plan("peg=morefree@peg") + plan("sac"))
+    assert note is not None and note.startswith("morefree, peg: each run compiles its training step")
+    assert "minutes on a CPU" in note and "train.log" in note
+    assert compile_note(plan("morefree", compile_train_step=False)) is None  # the override wins
+    assert compile_note(plan("sac")) is None
 
 
 def test_a_resumed_run_counts_the_time_its_steps_took_before_the_checkpoint():

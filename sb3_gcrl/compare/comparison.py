@@ -24,7 +24,7 @@ from sb3_gcrl.compare.storage import (
     lock_output,
 )
 from sb3_gcrl.zoo_checks import check_hyperparameters, check_mode_switching_callbacks, run_budget
-from sb3_gcrl.zoo_config import ZOO_CONFIGS_DIR
+from sb3_gcrl.zoo_config import ZOO_CONFIGS_DIR, resolve_config
 
 #: evaluations per run when ``eval_freq`` is not given
 DEFAULT_N_EVALUATIONS = 20
@@ -184,6 +184,31 @@ def plan_runs(
                 for seed in seeds
             )
     return specs
+
+
+def compile_note(specs: Sequence[RunSpec]) -> str | None:
+    """The line ``compare`` prints before runs whose algorithm compiles its training step (``compile_train_step``):
+    their progress stands still at their first training step while ``torch.compile`` works (None: no such run).
+
+    :param specs: the runs about to start.
+    """
+    compiling = sorted(
+        {
+            spec.method
+            for spec in specs
+            if {**resolve_config(spec.algo, spec.env_id, config=spec.config).hyperparams, **spec.hyperparams}.get(
+                "compile_train_step"
+            )
+        }
+    )
+    if not compiling:
+        return None
+    return (
+        f"{', '.join(compiling)}: each run compiles its training step with torch.compile first (compile_train_step), "
+        "so its progress waits at its first training step: minutes on a CPU (about 2-3 per run at the CPU presets' "
+        "sizes, up to 20 at the thesis's; torch's cache shortens the later runs of the same sizes). The run's "
+        "train.log says when compiling starts."
+    )
 
 
 def _config_label(config: str) -> str:
@@ -384,6 +409,9 @@ def compare(
         if n_skipped and progress:
             print(f"{n_skipped} of {len(specs)} runs already finished in {output}: skipped", file=sys.stderr)
 
+        note = compile_note([spec for spec, _ in jobs])
+        if note is not None:
+            print(note, file=sys.stderr)
         if jobs:
             display = ProgressDisplay(sum(spec.n_timesteps for spec, _ in jobs), len(jobs), enabled=progress)
             try:
