@@ -203,11 +203,12 @@ def compile_note(specs: Sequence[RunSpec]) -> str | None:
     )
     if not compiling:
         return None
+    from sb3_gcrl.morefree.acceleration import COMPILE_TIME
+
     return (
         f"{', '.join(compiling)}: each run compiles its training step with torch.compile first (compile_train_step), "
-        "so its progress waits at its first training step: minutes on a CPU (about 2-3 per run at the CPU presets' "
-        "sizes, up to 20 at the thesis's; torch's cache shortens the later runs of the same sizes). The run's "
-        "train.log says when compiling starts."
+        f"so its progress waits at its first training step: {COMPILE_TIME}. The run's train.log says when "
+        "compiling starts."
     )
 
 

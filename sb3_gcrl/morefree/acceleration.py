@@ -17,12 +17,16 @@ import torch as th
 
 from sb3_gcrl.common.hardware import describe_cpu, native_bfloat16
 
+#: how long compiling the training step takes (here and in ``sb3-gcrl compare``'s notice before such runs)
+COMPILE_TIME = (
+    "minutes on a CPU (about 2-3 for the CPU presets, up to 20 on one core at the thesis sizes; torch's cache "
+    "shortens later compiles of the same sizes)"
+)
 #: the line printed (with ``verbose >= 1``) before the first compiled training step
 COMPILE_NOTICE = (
     "MoReFree: compiling the training step with torch.compile (compile_train_step=True). The first training step "
-    "waits for it, once per model in this process: minutes on a CPU (about 2-3 for the CPU presets, up to 20 on one "
-    "core at the thesis sizes; torch's cache shortens later compiles of the same sizes), then a step takes about "
-    "half the time; compile_train_step=False skips it"
+    f"waits for it, once per model in this process: {COMPILE_TIME}, then a step takes about half the time; "
+    "compile_train_step=False skips it"
 )
 
 
