@@ -285,6 +285,8 @@ def test_a_damaged_checkpoint_is_named_before_the_run_resumes(tmp_path: Path) ->
     assert re.search(
         r"replay_buffer\.pkl is damaged: 1,000 bytes where the checkpoint wrote [\d,]+ \(cut off", refusal()
     )
+    (checkpoint / "model.zip").unlink()  # e.g. a copy that skipped *.zip files
+    assert "model.zip is damaged: the file is missing" in refusal()
     manifest = json.loads(whole["checkpoint.json"])
     del manifest["sizes"]  # a checkpoint that recorded no sizes
     (checkpoint / "checkpoint.json").write_text(json.dumps(manifest))
@@ -293,5 +295,8 @@ def test_a_damaged_checkpoint_is_named_before_the_run_resumes(tmp_path: Path) ->
     (checkpoint / "checkpoint.json").write_text(json.dumps(manifest))
     (checkpoint / "env_state.pkl").write_bytes(b"")
     assert re.search(r"env_state\.pkl is damaged: it does not load \(EOFError", refusal())
+    (checkpoint / "model.zip").write_bytes(whole["model.zip"][: len(whole["model.zip"]) // 2])
+    assert re.search(r"model\.zip is damaged: [\d,]+ bytes where the checkpoint wrote [\d,]+ \(cut off", refusal())
+    (checkpoint / "checkpoint.json").write_text(json.dumps(manifest))
     (checkpoint / "model.zip").write_bytes(whole["model.zip"][: len(whole["model.zip"]) // 2])
     assert "model.zip is not a zip archive, or a truncated one" in refusal()

@@ -163,18 +163,18 @@ def check_checkpoint(checkpoint: str | Path, algo_class: type) -> None:
         int(manifest["num_timesteps"])
     except (OSError, ValueError, KeyError, TypeError) as error:
         raise damaged(MANIFEST_FILE, f"{type(error).__name__}: {error}") from None
-    try:
-        check_model_file(checkpoint / MODEL_FILE, algo_class)
-    except (ModelFileError, OSError) as error:  # the message names the file
-        raise CheckpointError(str(error)) from None
-    for name, size in manifest.get("sizes", {}).items():
+    for name, size in manifest.get("sizes", {}).items():  # first, so that a missing file is named as such
         path = checkpoint / name
         if not path.is_file():
-            raise damaged(name, "the file is missing")
+            raise damaged(name, "the file is missing (a copy that left it out, e.g. one that skips *.zip files?)")
         if path.stat().st_size != size:
             raise damaged(
                 name, f"{path.stat().st_size:,} bytes where the checkpoint wrote {size:,} (cut off or altered)"
             )
+    try:
+        check_model_file(checkpoint / MODEL_FILE, algo_class)
+    except (ModelFileError, OSError) as error:  # the message names the file
+        raise CheckpointError(str(error)) from None
     for name in (ENV_STATE_FILE, RNG_STATE_FILE):
         try:
             pickle.loads((checkpoint / name).read_bytes())
