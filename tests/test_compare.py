@@ -1026,3 +1026,18 @@ def test_a_killed_run_continues_from_its_checkpoint_when_the_command_is_run_agai
     assert result["cpu_time_s"] > costs["cpu_time_s"] and result["wall_time_s"] > costs["wall_time_s"]
     assert result["cpu_split_s"]["train"] > costs["cpu_phase_s"]["train"]
     assert not (run_dir / "checkpoints").exists()  # a finished run keeps no checkpoint
+
+
+@pytest.mark.filterwarnings("ignore:MoReFree.learn")  # the budget ends before learning_starts on purpose
+def test_the_log_of_a_compiled_run_says_that_its_first_training_step_compiles(tmp_path):
+    def run(name: str, **hyperparams: object) -> str:
+        spec = plan_runs(
+            [parse_method("morefree")], ["GCRL/PointUMazeGoal-v0"], [0], 100, 100, 1, hyperparams, (),
+            ZOO_CONFIGS_DIR, config_folder=tmp_path,
+        )[0]  # fmt: skip
+        log = io.StringIO()  # the worker's train.log; 100 steps end before the first training step
+        assert execute_run(spec, tmp_path / name, log).status == "finished"
+        return log.getvalue()
+
+    assert "MoReFree: compiling the training step with torch.compile" in run("compiled")
+    assert "compiling the training step" not in run("plain", compile_train_step=False)

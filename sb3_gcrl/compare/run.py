@@ -316,6 +316,10 @@ def execute_run(
             setup = exp_manager.setup_experiment()
             assert setup is not None  # None only in hyperparameter-optimisation mode
             model, _ = setup
+            if getattr(model, "compile_train_step", False) and model.verbose < 1:  # verbose models say it themselves
+                from sb3_gcrl.morefree.acceleration import COMPILE_NOTICE
+
+                print(COMPILE_NOTICE)  # the run's log says why its first training step takes minutes
             all_goals = all_goals_callback(exp_manager.callbacks, spec.eval_freq)
             eval_env = exp_manager.create_envs(1, eval_env=True)
             eval_env.seed(spec.seed + EVAL_SEED_OFFSET)
