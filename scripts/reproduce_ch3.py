@@ -139,8 +139,9 @@ def run_probes(log: str, parse: Callable[[str], list[tuple[int, dict[str, float]
     """
     marks = list(PART.finditer(log))
     probes = parse(log[: marks[0].start()] if marks else log)
-    for mark, following in zip(marks, [*marks[1:], None], strict=True):
-        later = parse(log[mark.end() : following.start() if following else len(log)])
+    for index, mark in enumerate(marks):
+        end = marks[index + 1].start() if index + 1 < len(marks) else len(log)
+        later = parse(log[mark.end() : end])
         resumed_at = int(mark.group(1)) if mark.group(1) else 0
         if resumed_at and later and later[0][0] == resumed_at + 1:
             later = [(step - 1, figures) for step, figures in later[1:]]

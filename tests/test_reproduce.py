@@ -185,6 +185,24 @@ def _assert_comparison(folder: Path, n_runs: int) -> pd.DataFrame:
     return curves
 
 
+def test_reproduce_ch3_reads_the_probes_of_plain_continued_and_restarted_runs() -> None:
+    run_probes = load_script("reproduce_ch3").run_probes
+
+    def parse(text: str) -> list[tuple[int, dict[str, float]]]:  # "probe@STEP VALUE" lines
+        return [(int(step), {"x": float(value)}) for step, value in re.findall(r"^probe@(\d+) (\S+)$", text, re.M)]
+
+    plain = "eval@0\nprobe@10 1\nprobe@20 2\n"
+    assert run_probes(plain, parse) == [(10, {"x": 1.0}), (20, {"x": 2.0})]  # never continued
+    assert run_probes("", parse) == []
+    continued = plain + "Continuing the run from its checkpoint at 10 steps\nprobe@20 3\nprobe@30 4\n"
+    assert run_probes(continued, parse) == [(10, {"x": 1.0}), (20, {"x": 3.0}), (30, {"x": 4.0})]
+    # earlier versions probed a continued run at its first step and then one step off the grid
+    off_grid = plain + "Continuing the run from its checkpoint at 10 steps\nprobe@11 9\nprobe@21 3\n"
+    assert run_probes(off_grid, parse) == [(10, {"x": 1.0}), (20, {"x": 3.0})]
+    restarted = continued + "The run starts from zero: its checkpoint cannot be used (...)\nprobe@10 5\n"
+    assert run_probes(restarted, parse) == [(10, {"x": 5.0})]
+
+
 @pytest.mark.slow
 def test_reproduce_ch3_quick(tmp_path: Path) -> None:
     assert load_script("reproduce_ch3").main(["--quick", "--out", str(tmp_path)]) == 0
