@@ -89,6 +89,13 @@ def test_run_scores_hand_computed():
     scores = run_scores(table, "success_rate", solve_threshold=0.9).set_index("method")
     assert scores.loc["c", "solved_at"] == 20
     assert math.isnan(scores.loc["d", "solved_at"])
+    # reached: the first evaluation at the level, kept or not
+    assert scores.loc["c", "reached_at"] == 0 and scores.loc["d", "reached_at"] == 0
+    table = curves_table({("e", 0): [0.0, 0.95, 0.5, 0.0], ("f", 0): [0.0, 0.0, 0.0, 0.5]}, [0, 10, 20, 40])
+    scores = run_scores(table, "success_rate", solve_threshold=0.9).set_index("method")
+    assert scores.loc["e", "reached_at"] == 10 and math.isnan(scores.loc["e", "solved_at"])
+    assert math.isnan(scores.loc["f", "reached_at"])
+    assert run_scores(table, "success_rate")["reached_at"].isna().all()  # no threshold
     with pytest.raises(ValueError, match="final_window"):
         run_scores(table, "success_rate", final_window=0)
 
@@ -115,6 +122,8 @@ def test_aggregate_scores_uses_iqm_from_three_runs_and_mean_range_below():
     assert summary.loc["b", ["final", "final_low", "final_high"]].tolist() == [0.75, 0.5, 1.0]
     assert (summary.loc["b", "n_runs"], summary.loc["b", "n_planned"]) == (2, 3)
     assert (summary.loc["a", "n_solved"], summary.loc["a", "median_solved_at"]) == (1, 10)
+    assert (summary.loc["a", "n_reached"], summary.loc["a", "median_reached_at"]) == (1, 10)
+    assert (summary.loc["b", "n_reached"], summary.loc["b", "median_reached_at"]) == (1, 10)
 
 
 def test_probability_of_improvement_hand_computed():

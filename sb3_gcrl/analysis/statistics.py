@@ -37,13 +37,15 @@ def run_scores(
       (the average level during training; equals the value itself for a one-point curve);
     - ``solved_at``: first evaluated step from which the metric stays >= ``solve_threshold`` until the end
       (NaN if the last evaluation is below it, or no threshold): a lucky early evaluation that is lost
-      again does not count as solving.
+      again does not count as solving;
+    - ``reached_at``: first evaluated step at which the metric is >= ``solve_threshold`` (NaN if never, or no
+      threshold), kept or not: how soon a method first gets there.
 
     :param curves: tidy curves (``env, method, seed, timesteps`` + metric columns).
     :param metric: the column scored.
     :param final_window: evaluations averaged for ``final``.
     :param solve_threshold: level that counts as solved.
-    :return: one row per run: ``env, method, seed, final, auc, solved_at, last_timesteps``.
+    :return: one row per run: ``env, method, seed, final, auc, solved_at, reached_at, last_timesteps``.
     """
     check_int("final_window", final_window)
     rows = []
@@ -53,7 +55,9 @@ def run_scores(
         values = run[metric].to_numpy(dtype=np.float64)
         span = steps[-1] - steps[0]
         auc = float(trapezoid(values, steps) / span) if span > 0 else float(values[-1])
-        solved_at = np.nan
+        solved_at = reached_at = np.nan
+        if solve_threshold is not None and (values >= solve_threshold).any():
+            reached_at = float(steps[np.argmax(values >= solve_threshold)])
         if solve_threshold is not None and values[-1] >= solve_threshold:
             below = np.flatnonzero(values < solve_threshold)
             solved_at = float(steps[below[-1] + 1]) if below.size else float(steps[0])
@@ -65,10 +69,12 @@ def run_scores(
                 "final": float(values[-final_window:].mean()),
                 "auc": auc,
                 "solved_at": solved_at,
+                "reached_at": reached_at,
                 "last_timesteps": int(steps[-1]),
             }
         )
-    return pd.DataFrame(rows, columns=["env", "method", "seed", "final", "auc", "solved_at", "last_timesteps"])
+    columns = ["env", "method", "seed", "final", "auc", "solved_at", "reached_at", "last_timesteps"]
+    return pd.DataFrame(rows, columns=columns)
 
 
 def iqm_with_ci(
@@ -130,7 +136,8 @@ def aggregate_scores(
     :param seed: seed of the bootstrap.
     :param planned_runs: ``(env, method) -> runs planned``, to report finished/planned (default: finished).
     :return: one row per (env, method): ``n_runs, n_planned, estimator``, ``final``/``final_low``/``final_high``,
-        ``auc``/``auc_low``/``auc_high``, ``n_solved`` and ``median_solved_at`` (over solving runs).
+        ``auc``/``auc_low``/``auc_high``, ``n_solved`` and ``median_solved_at`` (over solving runs), ``n_reached``
+        and ``median_reached_at`` (over the runs that reached the threshold at least once).
     """
     rows = []
     for (env_id, method), group in scores.groupby(["env", "method"], sort=False):
@@ -144,10 +151,14 @@ def aggregate_scores(
         solved = group["solved_at"].dropna()
         row["n_solved"] = len(solved)
         row["median_solved_at"] = float(solved.median()) if len(solved) else np.nan
+        reached = group["reached_at"].dropna()
+        row["n_reached"] = len(reached)
+        row["median_reached_at"] = float(reached.median()) if len(reached) else np.nan
         rows.append(row)
     columns = [
         "env", "method", "n_runs", "n_planned", "estimator",
         "final", "final_low", "final_high", "auc", "auc_low", "auc_high", "n_solved", "median_solved_at",
+        "n_reached", "median_reached_at",
     ]  # fmt: skip
     return pd.DataFrame(rows, columns=columns)
 

@@ -93,7 +93,10 @@ def format_table(summary: pd.DataFrame, metrics: dict[str, str]) -> str:
     :param metrics: metric per env.
     :return: the table text.
     """
-    header = ["env", "method", "runs", "metric", "final", "AUC", "estimator", "solved", "median steps to solve"]
+    header = [
+        "env", "method", "runs", "metric", "final", "AUC", "estimator", "solved", "median steps to solve",
+        "median steps to reach",
+    ]  # fmt: skip
     lines = []
     for row in summary.itertuples(index=False):
         metric = metrics[row.env]
@@ -101,6 +104,7 @@ def format_table(summary: pd.DataFrame, metrics: dict[str, str]) -> str:
         small = all(abs(bound) < 10 for bound in bounds if not math.isnan(bound))
         digits = 2 if metric in SUCCESS_METRICS or small else 1  # returns of 0-1 rewards need the second digit
         solved_at = "-" if math.isnan(row.median_solved_at) else f"{row.median_solved_at:,.0f}"
+        reached_at = "-" if math.isnan(row.median_reached_at) else f"{row.median_reached_at:,.0f}"
         lines.append(
             [
                 row.env,
@@ -112,6 +116,7 @@ def format_table(summary: pd.DataFrame, metrics: dict[str, str]) -> str:
                 "IQM [95% CI]" if row.estimator == "IQM" else "mean [min, max]",
                 f"{row.n_solved}/{row.n_runs}" if metric in SUCCESS_METRICS else "-",
                 solved_at,
+                f"{reached_at} ({row.n_reached}/{row.n_runs})" if metric in SUCCESS_METRICS else "-",
             ]
         )
     widths = [max(len(str(cell)) for cell in column) for column in zip(header, *lines)]
@@ -275,7 +280,8 @@ def write_outputs(output: Path, summary: Summary, title: str, settings_md: str, 
         "(rliable, 2000 resamples); with fewer, the mean and the [min, max] of the runs. Curves: mean over runs "
         "with a 95% percentile-bootstrap band. *solved*: runs whose success rate reached "
         f"{SUCCESS_THRESHOLD:g} (or `--solve-threshold`) and stayed there until the end; *median steps to solve*: "
-        "median over those runs of the first evaluation from which it stayed there.",
+        "median over those runs of the first evaluation from which it stayed there; *median steps to reach*: median "
+        "of the first evaluation at that level, kept or not, over the runs that got there (how many of all).",
         "",
     ]
     if summary.return_table:
